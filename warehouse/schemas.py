@@ -119,7 +119,7 @@ TABLES: dict[str, Table] = {
             "weather",
             "Tidy weather grid read from ERA5 NetCDF or GFS GRIB2: one row per time, pressure level and grid node.",
             (
-                _c("time", TS, "UTC", "valid time of the field (after the configured time alignment)"),
+                _c("time", TS, "UTC", "valid time of the field, as in the source file (alignment to the flights happens in tracks_20s)"),
                 _c("level_hpa", pa.float64(), "hPa", "isobaric level"),
                 _c("lat", pa.float64(), "deg", "grid latitude"),
                 _c("lon", pa.float64(), "deg", "grid longitude, -180..180"),

@@ -1,0 +1,41 @@
+# trafficlearn: `make demo` builds everything on the bundled real data, `make test` runs the test suite.
+SHELL := /bin/bash
+PYTHON ?= python3.11
+VENV := .venv
+PY := $(VENV)/bin/python
+export TRAFFICLEARN_HOME ?= $(CURDIR)/var
+export DAGSTER_HOME := $(TRAFFICLEARN_HOME)/dagster
+export PYTHONUNBUFFERED := 1
+
+.PHONY: demo test bench dev tables clean
+
+$(VENV)/.installed: pyproject.toml
+	@command -v $(PYTHON) >/dev/null || { echo "error: $(PYTHON) not found (trafficlearn needs Python 3.11)"; exit 1; }
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -e '.[dev]'
+	touch $@
+
+$(DAGSTER_HOME)/dagster.yaml: dagster.yaml
+	mkdir -p $(DAGSTER_HOME)
+	cp dagster.yaml $@
+
+demo: $(VENV)/.installed $(DAGSTER_HOME)/dagster.yaml
+	$(VENV)/bin/dagster asset materialize -m pipelines.definitions --select 'group:aviation'
+	$(PY) -m warehouse tables
+
+test: $(VENV)/.installed
+	$(PY) -m pytest tests --ignore=tests/bench -q
+
+bench: $(VENV)/.installed
+	$(PY) -m pip install --quiet -e '.[dev,bench]'
+	$(PY) -m pytest tests/bench -q -s
+
+dev: $(VENV)/.installed $(DAGSTER_HOME)/dagster.yaml
+	$(PY) -m pipelines.dev
+
+tables: $(VENV)/.installed
+	$(PY) -m warehouse tables
+
+clean:
+	rm -rf $(TRAFFICLEARN_HOME)

@@ -1,0 +1,106 @@
+"""Asset checks on every aviation table: declared schema, time order, exact step, positions, phase order."""
+
+import dagster as dg
+import polars as pl
+import pyarrow.parquet as pq
+
+from models.aviation.phases import PHASES
+from warehouse.schemas import TABLES
+from warehouse.storage import read_table, table_path
+
+AVIATION_TABLES = (
+    "flight_tracks", "flights", "ingest_rejects", "ingest_summary", "weather",
+    "tracks_20s", "flight_phases", "trajectory_modes", "flight_splits",
+)
+
+
+def _schema_check(table: str) -> dg.AssetChecksDefinition:
+    @dg.asset_check(asset=table, name="schema_matches_declaration", description=f"{table} has exactly its declared schema")
+    def check() -> dg.AssetCheckResult:
+        found = pq.read_schema(table_path(table))
+        declared = TABLES[table].schema
+        diffs = [
+            f"{f.name}: {found.field(f.name).type if f.name in found.names else 'missing'} != {f.type}"
+            for f in declared
+            if f.name not in found.names or found.field(f.name).type != f.type
+        ]
+        return dg.AssetCheckResult(passed=not diffs and found.names == declared.names, metadata={"differences": dg.MetadataValue.json(diffs)})
+
+    return check
+
+
+def _failures(df: pl.DataFrame, bad: pl.Expr, what: str) -> dg.AssetCheckResult:
+    offenders = df.filter(bad)
+    return dg.AssetCheckResult(
+        passed=offenders.height == 0,
+        metadata={what: offenders.height, "examples": dg.MetadataValue.json(offenders["flight_id"].unique().head(5).to_list())},
+    )
+
+
+@dg.asset_check(asset="flight_tracks", description="timestamps strictly increase within every flight")
+def flight_tracks_time_monotonic() -> dg.AssetCheckResult:
+    t = read_table("flight_tracks")
+    return _failures(t, (pl.col("ts").diff().over("flight_id") <= pl.duration(0)).fill_null(False), "non_increasing_steps")
+
+
+@dg.asset_check(asset="ingest_summary", description="rows read = kept + rejected, per source")
+def ingest_rows_accounted() -> dg.AssetCheckResult:
+    s = read_table("ingest_summary")
+    per = s.group_by("source").agg(
+        read=pl.col("rows").filter(pl.col("outcome") == "read").sum(),
+        accounted=pl.col("rows").filter(pl.col("outcome") != "read").sum(),
+    )
+    rejects = read_table("ingest_rejects").height
+    ok = per.filter(pl.col("read") != pl.col("accounted")).height == 0 and rejects == s.filter(pl.col("outcome") == "rejected")["rows"].sum()
+    return dg.AssetCheckResult(passed=ok, metadata={"sources": dg.MetadataValue.json(per.to_dicts()), "quarantined_rows": rejects})
+
+
+@dg.asset_check(asset="tracks_20s", description="time strictly increases within every flight")
+def tracks_time_monotonic() -> dg.AssetCheckResult:
+    t = read_table("tracks_20s")
+    return _failures(t, (pl.col("ts").diff().over("flight_id") <= pl.duration(0)).fill_null(False), "non_increasing_steps")
+
+
+@dg.asset_check(asset="tracks_20s", description="every step is exactly the configured Δt (the most common step)")
+def tracks_exact_step() -> dg.AssetCheckResult:
+    t = read_table("tracks_20s").with_columns(step=pl.col("ts").diff().over("flight_id"))
+    dt = t["step"].drop_nulls().mode().sort()[0]
+    result = _failures(t, pl.col("step").is_not_null() & (pl.col("step") != dt), "off_step_points")
+    return dg.AssetCheckResult(passed=result.passed, metadata={**result.metadata, "step_s": dt.total_seconds()})
+
+
+@dg.asset_check(asset="tracks_20s", description="no missing or NaN position, altitude or weather value")
+def tracks_no_missing_values() -> dg.AssetCheckResult:
+    t = read_table("tracks_20s")
+    cols = ["lat", "lon", "alt_m", "temperature_k", "wind_u_mps", "wind_v_mps"]
+    return _failures(t, pl.any_horizontal(pl.col(c).is_null() | pl.col(c).is_nan() for c in cols), "points_with_missing_values")
+
+
+@dg.asset_check(asset="tracks_20s", description="phases appear only in the order climb -> cruise -> descent")
+def tracks_phase_order() -> dg.AssetCheckResult:
+    rank = pl.col("phase").replace_strict({p: i for i, p in enumerate(PHASES)}, default=-1, return_dtype=pl.Int8)
+    t = read_table("tracks_20s").with_columns(rank=rank)
+    return _failures(t, (pl.col("rank") < 0) | (pl.col("rank").diff().over("flight_id") < 0).fill_null(False), "out_of_order_points")
+
+
+@dg.asset_check(asset="trajectory_modes", description="every mode of a clustered route has at least two flights")
+def modes_min_flights() -> dg.AssetCheckResult:
+    m = read_table("trajectory_modes").filter(pl.col("n_modes") > 1)
+    sizes = m.group_by("route", "phase", "mode").agg(flights=pl.len())
+    small = sizes.filter(pl.col("flights") < 2)
+    return dg.AssetCheckResult(
+        passed=small.height == 0,
+        severity=dg.AssetCheckSeverity.WARN,
+        metadata={"smallest_mode": int(sizes["flights"].min() or 0), "modes_below_2": dg.MetadataValue.json(small.to_dicts())},
+    )
+
+
+CHECKS = [_schema_check(t) for t in AVIATION_TABLES] + [
+    flight_tracks_time_monotonic,
+    ingest_rows_accounted,
+    tracks_time_monotonic,
+    tracks_exact_step,
+    tracks_no_missing_values,
+    tracks_phase_order,
+    modes_min_flights,
+]

@@ -1,0 +1,149 @@
+"""Origin and destination airports of flights, from their first and last points.
+
+Real coverage often starts after take-off and ends in descent well before landing (the Kaliningrad
+flights stop 12-161 NM short of UMKK), so the nearest airport is often wrong: a small airfield lies
+under the track. Candidates are therefore the airports of openap's table that have an instrument landing
+system in openap's nav.dat (where airliners land), all airports only where none is in range. A low end
+point (within a 3-degree path of the ground, i.e. in the terminal area where aircraft are vectored in any
+direction) takes the nearest candidate; a high one scores the candidates ahead of it (behind it, for the
+origin) by cross-track distance plus the mismatch between the distance to go and the distance a 3-degree
+path from its altitude needs. Flights sharing a callsign fly the same route, so the per-flight answers
+are then put to a majority vote per callsign; the distance to the chosen airport is recorded so a user
+can see how far coverage stopped short.
+"""
+
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+import polars as pl
+from sklearn.neighbors import BallTree
+
+EARTH_RADIUS_NM = 3440.065
+SEARCH_RADIUS_NM = 300.0
+FT_PER_NM_PATH = 318.0  # a 3-degree glide path loses 318 ft per NM
+MAX_OFF_TRACK_DEG = 60.0
+
+
+TERMINAL_AREA_NM = 40.0  # a 3-degree path this long starts at ~12,700 ft
+
+
+def _openap_nav() -> Path:
+    import openap
+
+    return Path(openap.__file__).parent / "data" / "nav"
+
+
+@lru_cache(maxsize=1)
+def airports_table() -> pl.DataFrame:
+    """openap's airports (icao, lat, lon) with `ils`: the airport has an ILS or localizer in nav.dat."""
+    ap = pl.read_csv(_openap_nav() / "airports.csv", columns=["icao", "lat", "lon"], schema_overrides={"icao": pl.String})
+    # nav.dat rows of type 4 (ILS) and 5 (localizer) name their airport in the 9th field
+    lines = (_openap_nav() / "nav.dat").read_text(encoding="latin-1").splitlines()
+    ils = {f[8] for f in (line.split() for line in lines) if len(f) > 8 and f[0] in ("4", "5")}
+    return ap.drop_nulls().with_columns(ils=pl.col("icao").is_in(list(ils)))
+
+
+@lru_cache(maxsize=2)
+def _tree(ils_only: bool) -> tuple[BallTree, pl.DataFrame]:
+    ap = airports_table().filter(pl.col("ils")) if ils_only else airports_table()
+    return BallTree(np.radians(ap.select("lat", "lon").to_numpy()), metric="haversine"), ap
+
+
+def _bearing_deg(lat1, lon1, lat2, lon2):
+    p1, p2, dl = np.radians(lat1), np.radians(lat2), np.radians(lon2 - lon1)
+    y = np.sin(dl) * np.cos(p2)
+    x = np.cos(p1) * np.sin(p2) - np.sin(p1) * np.cos(p2) * np.cos(dl)
+    return np.degrees(np.arctan2(y, x)) % 360
+
+
+def best_airport(lat: np.ndarray, lon: np.ndarray, alt_m: np.ndarray, heading_deg: np.ndarray):
+    """Per point: (icao, distance_nm) of the airport best explaining a flight heading there from this point."""
+    icao, dist = _best_among(lat, lon, alt_m, heading_deg, ils_only=True)
+    missing = np.isnan(dist)
+    if missing.any():
+        icao[missing], dist[missing] = _best_among(lat[missing], lon[missing], alt_m[missing], heading_deg[missing], ils_only=False)
+    return icao, dist
+
+
+def _best_among(lat, lon, alt_m, heading_deg, ils_only: bool):
+    tree, ap = _tree(ils_only)
+    ap_lat, ap_lon, icao = ap["lat"].to_numpy(), ap["lon"].to_numpy(), ap["icao"].to_numpy()
+    ind, dist = tree.query_radius(
+        np.radians(np.c_[lat, lon]), r=SEARCH_RADIUS_NM / EARTH_RADIUS_NM, return_distance=True
+    )
+    # flatten the ragged candidate lists so that scoring is one vectorised pass
+    counts = np.array([len(i) for i in ind])
+    owner = np.repeat(np.arange(len(lat)), counts)
+    cand = np.concatenate(ind) if counts.sum() else np.zeros(0, int)
+    d_nm = np.concatenate(dist) * EARTH_RADIUS_NM if counts.sum() else np.zeros(0)
+    off = np.radians((_bearing_deg(lat[owner], lon[owner], ap_lat[cand], ap_lon[cand]) - heading_deg[owner] + 180) % 360 - 180)
+    to_go = np.clip(alt_m[owner] / 0.3048, 0, None) / FT_PER_NM_PATH
+    score = np.abs(d_nm * np.sin(off)) + 0.25 * np.abs(d_nm * np.cos(off) - to_go)
+    score[np.abs(np.degrees(off)) > MAX_OFF_TRACK_DEG] = np.inf
+    terminal = to_go < TERMINAL_AREA_NM
+    score[terminal] = d_nm[terminal]
+    best_icao = np.full(len(lat), None, dtype=object)
+    best_dist = np.full(len(lat), np.nan)
+    if len(cand):
+        order = np.lexsort((score, owner))
+        first = order[np.r_[True, owner[order][1:] != owner[order][:-1]]]
+        ok = np.isfinite(score[first])
+        best_icao[owner[first][ok]] = icao[cand[first][ok]]
+        best_dist[owner[first][ok]] = d_nm[first][ok]
+    return best_icao, best_dist
+
+
+def _distance_nm(lat1, lon1, lat2, lon2):
+    p1, p2 = np.radians(lat1), np.radians(lat2)
+    a = np.sin((p2 - p1) / 2) ** 2 + np.cos(p1) * np.cos(p2) * np.sin(np.radians(lon2 - lon1) / 2) ** 2
+    return 2 * EARTH_RADIUS_NM * np.arcsin(np.sqrt(a))
+
+
+def flights_table(tracks: pl.DataFrame) -> pl.DataFrame:
+    """One row per flight with origin/destination (and the distance to them) from its end points."""
+    ends = (
+        tracks.sort("flight_id", "ts")
+        .group_by("flight_id", maintain_order=True)
+        .agg(
+            pl.col("callsign").first(),
+            pl.col("icao24").first(),
+            first_ts=pl.col("ts").first(),
+            last_ts=pl.col("ts").last(),
+            n_points=pl.len().cast(pl.Int64),
+            lat0=pl.col("lat").first(),
+            lon0=pl.col("lon").first(),
+            alt0=pl.col("alt_m").first(),
+            # heading from the positions themselves: reported track can be missing at the ends
+            lat1=pl.col("lat").slice(10, 1).first(),
+            lon1=pl.col("lon").slice(10, 1).first(),
+            latn=pl.col("lat").last(),
+            lonn=pl.col("lon").last(),
+            altn=pl.col("alt_m").last(),
+            latm=pl.col("lat").reverse().slice(10, 1).first(),
+            lonm=pl.col("lon").reverse().slice(10, 1).first(),
+        )
+    )
+    e = {c: ends[c].to_numpy() for c in ends.columns}
+    back = _bearing_deg(e["lat1"], e["lon1"], e["lat0"], e["lon0"])  # looking back from the first point
+    ahead = _bearing_deg(e["latm"], e["lonm"], e["latn"], e["lonn"])
+    origin, _ = best_airport(e["lat0"], e["lon0"], e["alt0"], back)
+    dest, _ = best_airport(e["latn"], e["lonn"], e["altn"], ahead)
+    voted = ends.with_columns(origin=pl.Series(origin, dtype=pl.String), destination=pl.Series(dest, dtype=pl.String))
+    voted = voted.with_columns(
+        pl.col(c).drop_nulls().mode().sort().first().over("callsign").fill_null(pl.col(c)).fill_null("UNKNOWN")
+        for c in ("origin", "destination")
+    )
+    ap = airports_table().select("icao", "lat", "lon")
+    voted = voted.join(ap.rename({"icao": "origin", "lat": "o_lat", "lon": "o_lon"}), on="origin", how="left").join(
+        ap.rename({"icao": "destination", "lat": "d_lat", "lon": "d_lon"}), on="destination", how="left"
+    )
+    v = {c: voted[c].to_numpy() for c in ("lat0", "lon0", "o_lat", "o_lon", "latn", "lonn", "d_lat", "d_lon")}
+    return voted.with_columns(
+        route=pl.concat_str("origin", "destination", separator="-"),
+        origin_distance_nm=pl.Series(_distance_nm(v["lat0"], v["lon0"], v["o_lat"], v["o_lon"])),
+        destination_distance_nm=pl.Series(_distance_nm(v["latn"], v["lonn"], v["d_lat"], v["d_lon"])),
+    ).select(
+        "flight_id", "callsign", "icao24", "origin", "destination", "route", "origin_distance_nm",
+        "destination_distance_nm", "first_ts", "last_ts", "n_points",
+    ).sort("flight_id")

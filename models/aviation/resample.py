@@ -1,0 +1,92 @@
+"""Constant-step tracks: every flight on a grid of multiples of Δt (default 20 s).
+
+Between two received positions the aircraft is assumed to fly at constant speed, i.e. positions,
+altitude and rates are linear in time. All flights are interpolated in one `np.interp` call: each
+flight's times are offset by its index times a stride longer than any flight, which makes the
+concatenated time axis strictly increasing without letting one flight bleed into the next.
+"""
+
+import numpy as np
+import polars as pl
+
+EARTH_RADIUS_M = 6_371_000.0
+US = 1_000_000
+
+
+def _grid(first_us: np.ndarray, last_us: np.ndarray, dt_us: int) -> tuple[np.ndarray, np.ndarray]:
+    """(flight index, grid time in µs) for all grid points of all flights, without a Python loop."""
+    start = -(-first_us // dt_us) * dt_us  # ceil to the step
+    stop = last_us // dt_us * dt_us
+    n = np.maximum((stop - start) // dt_us + 1, 0)
+    owner = np.repeat(np.arange(len(n)), n)
+    offset = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
+    return owner, start[owner] + offset * dt_us
+
+
+def resample(tracks: pl.DataFrame, dt_s: float = 20.0) -> pl.DataFrame:
+    """Cleaned points (flight_id, ts, lat, lon, alt_m, groundspeed_mps, track_deg, vertical_rate_mps)
+    -> the same columns on the Δt grid. Flights shorter than one step are dropped."""
+    dt_us = int(round(dt_s * US))
+    src = tracks.sort("flight_id", "ts")
+    ids, idx = np.unique(src["flight_id"].to_numpy(), return_inverse=True)
+    t = src["ts"].dt.epoch("us").to_numpy()
+    bounds = src.group_by("flight_id", maintain_order=True).agg(pl.col("ts").min(), t1=pl.col("ts").max())
+    first_us = bounds["ts"].dt.epoch("us").to_numpy()
+    last_us = bounds["t1"].dt.epoch("us").to_numpy()
+    owner, grid_us = _grid(first_us, last_us, dt_us)
+
+    t0 = t.min() if len(t) else 0
+    stride = float((t.max() - t0) if len(t) else 0) + 10.0 * dt_us
+    key_src = idx * stride + (t - t0)
+    key_dst = owner * stride + (grid_us - t0)
+
+    def interp(values: np.ndarray) -> np.ndarray:
+        ok = ~np.isnan(values)
+        if ok.all():
+            return np.interp(key_dst, key_src, values)
+        out = np.interp(key_dst, key_src[ok], values[ok]) if ok.any() else np.full(len(key_dst), np.nan)
+        # outside a flight's first/last reported value there is nothing to interpolate from: leave a gap
+        lo, hi = np.full(len(ids), np.inf), np.full(len(ids), -np.inf)
+        np.minimum.at(lo, idx[ok], key_src[ok])
+        np.maximum.at(hi, idx[ok], key_src[ok])
+        out[(key_dst < lo[owner]) | (key_dst > hi[owner])] = np.nan
+        return out
+
+    col = lambda c: src[c].cast(pl.Float64).fill_null(np.nan).to_numpy()  # noqa: E731
+    lon_unwrapped = np.degrees(np.unwrap(np.radians(col("lon"))))
+    track = np.radians(col("track_deg"))
+    out = pl.DataFrame(
+        {
+            "flight_id": ids[owner],
+            "ts": pl.Series(grid_us).cast(pl.Datetime("us", "UTC")),
+            "lat": interp(col("lat")),
+            "lon": (interp(lon_unwrapped) + 180.0) % 360.0 - 180.0,
+            "alt_m": interp(col("alt_m")),
+            "groundspeed_mps": interp(col("groundspeed_mps")),
+            # angles are interpolated through their sine and cosine so that 359° -> 1° passes north
+            "track_deg": np.degrees(np.arctan2(interp(np.sin(track)), interp(np.cos(track)))) % 360.0,
+            "vertical_rate_mps": interp(col("vertical_rate_mps")),
+        }
+    )
+    return fill_rates_from_positions(out, dt_s)
+
+
+def fill_rates_from_positions(df: pl.DataFrame, dt_s: float) -> pl.DataFrame:
+    """Where a source reported no speed/track/vertical rate, derive them from consecutive positions."""
+    lat, lon = pl.col("lat").radians(), pl.col("lon").radians()
+    nlat = lat.shift(-1).over("flight_id").fill_null(lat)
+    nlon = lon.shift(-1).over("flight_id").fill_null(lon)
+    plat = lat.shift(1).over("flight_id").fill_null(lat)
+    plon = lon.shift(1).over("flight_id").fill_null(lon)
+    steps = (pl.col("ts").shift(-1).over("flight_id").is_not_null().cast(pl.Float64) + pl.col("ts").shift(1).over("flight_id").is_not_null().cast(pl.Float64)).clip(lower_bound=1.0)
+    dlat, dlon = nlat - plat, nlon - plon
+    a = (dlat / 2).sin() ** 2 + plat.cos() * nlat.cos() * (dlon / 2).sin() ** 2
+    dist = 2 * EARTH_RADIUS_M * a.sqrt().arcsin()
+    bearing = pl.arctan2(dlon.sin() * nlat.cos(), plat.cos() * nlat.sin() - plat.sin() * nlat.cos() * dlon.cos()).degrees() % 360
+    nalt = pl.col("alt_m").shift(-1).over("flight_id").fill_null(pl.col("alt_m"))
+    palt = pl.col("alt_m").shift(1).over("flight_id").fill_null(pl.col("alt_m"))
+    return df.with_columns(
+        pl.col("groundspeed_mps").fill_nan(None).fill_null(dist / (steps * dt_s)),
+        pl.col("track_deg").fill_nan(None).fill_null(bearing),
+        pl.col("vertical_rate_mps").fill_nan(None).fill_null((nalt - palt) / (steps * dt_s)),
+    )

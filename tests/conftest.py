@@ -1,0 +1,39 @@
+"""Shared fixtures: an isolated TRAFFICLEARN_HOME per test and small slices of the bundled real data."""
+
+from pathlib import Path
+
+import polars as pl
+import pytest
+
+REPO = Path(__file__).resolve().parent.parent
+OPENSKY = REPO / "data" / "opensky" / "kaliningrad_2022-02-22_2022-03-05.parquet"
+
+
+@pytest.fixture(autouse=True)
+def isolated_home(tmp_path, monkeypatch) -> Path:
+    home = tmp_path / "home"
+    monkeypatch.setenv("TRAFFICLEARN_HOME", str(home))
+    return home
+
+
+@pytest.fixture(scope="session")
+def opensky_raw() -> pl.DataFrame:
+    return pl.read_parquet(OPENSKY)
+
+
+@pytest.fixture(scope="session")
+def opensky_small(opensky_raw, tmp_path_factory) -> Path:
+    """Real state vectors of six flights (three per route, before and after 2022-02-27)."""
+    keep = (
+        opensky_raw.group_by("icao24", "callsign")
+        .agg(pl.col("time").min())
+        .sort("time")
+        .with_columns(route=pl.col("callsign").str.slice(0, 3))
+        .group_by("route", maintain_order=True)
+        .agg(pl.col("icao24", "callsign").gather([0, 1, -1]))
+        .explode("icao24", "callsign")
+    )
+    df = opensky_raw.join(keep.select("icao24", "callsign"), on=["icao24", "callsign"])
+    path = tmp_path_factory.mktemp("data") / "six_flights.parquet"
+    df.write_parquet(path)
+    return path

@@ -1,0 +1,95 @@
+"""20 s resampling and phase segmentation on real flights."""
+
+import numpy as np
+import polars as pl
+import pytest
+
+from models.aviation.airports import airports_table, flights_table
+from models.aviation.ingest import ingest
+from models.aviation.phases import PHASES, PhaseConfig, assign_phases, phase_table
+from models.aviation.resample import resample
+
+
+@pytest.fixture(scope="module")
+def cleaned(opensky_small):
+    tracks, _, _ = ingest(opensky_small)
+    return tracks, flights_table(tracks)
+
+
+def test_constant_step_grid(cleaned):
+    tracks, _ = cleaned
+    grid = resample(tracks, 20.0)
+    steps = grid.with_columns(d=pl.col("ts").diff().over("flight_id").dt.total_seconds())["d"].drop_nulls()
+    assert set(steps.unique().to_list()) == {20}
+    assert (grid["ts"].dt.epoch("s") % 20 == 0).all()
+    assert grid.null_count().sum_horizontal()[0] == 0
+    assert grid["flight_id"].n_unique() == tracks["flight_id"].n_unique()
+    # every grid point lies inside its flight's span: no bleeding between flights
+    span = tracks.group_by("flight_id").agg(t0=pl.col("ts").min(), t1=pl.col("ts").max())
+    inside = grid.join(span, on="flight_id").select(((pl.col("ts") >= pl.col("t0")) & (pl.col("ts") <= pl.col("t1"))).all())
+    assert inside.item()
+
+
+def test_constant_speed_between_reports():
+    """Two reports 60 s apart: the 20 s points lie evenly between them (constant speed)."""
+    t = pl.DataFrame(
+        {
+            "flight_id": ["a", "a"],
+            "ts": pl.Series(["2022-01-01T00:00:00", "2022-01-01T00:01:00"]).str.to_datetime(time_zone="UTC").cast(pl.Datetime("us", "UTC")),
+            "lat": [50.0, 50.3], "lon": [179.9, -179.9], "alt_m": [1000.0, 1600.0],
+            "groundspeed_mps": [200.0, 200.0], "track_deg": [350.0, 10.0], "vertical_rate_mps": [10.0, 10.0],
+        }
+    )
+    g = resample(t, 20.0)
+    assert g["lat"].to_list() == pytest.approx([50.0, 50.1, 50.2, 50.3])
+    assert g["alt_m"].to_list() == pytest.approx([1000, 1200, 1400, 1600])
+    # across the antimeridian and through north, not the long way round
+    assert g["lon"].to_list() == pytest.approx([179.9, 179.9666667, -179.9666667, -179.9])
+    assert all(d < 10.001 or d > 349.999 for d in g["track_deg"].to_list())
+
+
+def test_rates_derived_when_source_has_none():
+    t = pl.DataFrame(
+        {
+            "flight_id": ["a"] * 3,
+            "ts": pl.datetime_range(pl.datetime(2022, 1, 1, time_zone="UTC"), pl.datetime(2022, 1, 1, 0, 0, 40, time_zone="UTC"), "20s", eager=True).cast(pl.Datetime("us", "UTC")),
+            "lat": [50.0, 50.0, 50.0], "lon": [10.0, 10.01, 10.02], "alt_m": [1000.0, 1100.0, 1200.0],
+            "groundspeed_mps": [None] * 3, "track_deg": [None] * 3, "vertical_rate_mps": [None] * 3,
+        },
+        schema_overrides={"groundspeed_mps": pl.Float64, "track_deg": pl.Float64, "vertical_rate_mps": pl.Float64},
+    )
+    g = resample(t, 20.0)
+    assert g["vertical_rate_mps"].to_list() == pytest.approx([5.0, 5.0, 5.0])
+    assert g["track_deg"].to_list() == pytest.approx([90.0] * 3, abs=0.1)
+    assert g["groundspeed_mps"][1] == pytest.approx(715.5 / 20, rel=0.01)
+
+
+@pytest.mark.parametrize("method", ["vertical", "regions"])
+def test_phases_in_order_and_sensible(cleaned, method):
+    tracks, flights = cleaned
+    grid = assign_phases(resample(tracks), flights, PhaseConfig(method=method), airports_table())
+    rank = grid.with_columns(r=pl.col("phase").replace_strict({p: i for i, p in enumerate(PHASES)}, return_dtype=pl.Int8))
+    assert rank.select((pl.col("r").diff().over("flight_id").fill_null(0) >= 0).all()).item()
+    by_phase = grid.group_by("phase").agg(alt=pl.col("alt_m").median(), vr=pl.col("vertical_rate_mps").median())
+    alt = dict(by_phase.select("phase", "alt").rows())
+    vr = dict(by_phase.select("phase", "vr").rows())
+    assert alt["cruise"] > 9000 > max(alt["climb"], alt["descent"])
+    assert vr["climb"] > 3 and vr["descent"] < -3 and abs(vr["cruise"]) < 1
+    table = phase_table(grid)
+    assert set(table["phase"]) == set(PHASES)
+    assert (table["start_ts"] <= table["end_ts"]).all()
+
+
+def test_unknown_phase_method(cleaned):
+    tracks, flights = cleaned
+    with pytest.raises(ValueError, match="unknown phase method"):
+        assign_phases(resample(tracks), flights, PhaseConfig(method="magic"))
+
+
+def test_resample_is_vectorised_over_flights(cleaned):
+    """Doubling the flights (time-shifted copies) gives exactly the same points for the originals."""
+    tracks, _ = cleaned
+    shifted = tracks.with_columns(flight_id=pl.col("flight_id") + "_copy", ts=pl.col("ts") + pl.duration(days=30), lat=pl.col("lat") + 0.5)
+    both = resample(pl.concat([tracks, shifted]))
+    alone = resample(tracks)
+    np.testing.assert_allclose(both.filter(~pl.col("flight_id").str.ends_with("_copy"))["lat"].to_numpy(), alone["lat"].to_numpy())

@@ -1,0 +1,107 @@
+"""Storage layer and read-only SQL: schema enforcement, atomic writes, views, refusal of writes, CLI."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import polars as pl
+import pytest
+
+from warehouse import storage
+from warehouse.__main__ import main
+from warehouse.duck import connect
+from warehouse.schemas import TABLES, data_dictionary_markdown
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def _summary(n: int = 3) -> pl.DataFrame:
+    return pl.DataFrame({"source": ["f"] * n, "outcome": ["read"] * n, "reason": [""] * n, "rows": list(range(n))})
+
+
+def test_write_enforces_declared_schema():
+    with pytest.raises(storage.SchemaError, match="missing columns \\['rows'\\]"):
+        storage.write_table("ingest_summary", _summary().drop("rows"))
+    with pytest.raises(storage.SchemaError, match="unexpected columns \\['extra'\\]"):
+        storage.write_table("ingest_summary", _summary().with_columns(extra=pl.lit(1)))
+    with pytest.raises(storage.SchemaError, match="declared non-null"):
+        storage.write_table("ingest_summary", _summary().with_columns(rows=pl.lit(None, dtype=pl.Int64)))
+    with pytest.raises(storage.SchemaError, match="unknown table"):
+        storage.write_table("nope", _summary())
+    path = storage.write_table("ingest_summary", _summary().with_columns(pl.col("rows").cast(pl.Int32)))
+    assert pl.read_parquet(path).schema["rows"] == pl.Int64
+
+
+def test_atomic_write_leaves_old_file_on_failure(monkeypatch):
+    path = storage.write_table("ingest_summary", _summary(3))
+
+    def crash(*a, **k):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(storage.pq, "write_table", crash)  # a crash mid-write: a fault we cannot cause for real
+    with pytest.raises(OSError):
+        storage.write_table("ingest_summary", _summary(5))
+    assert pl.read_parquet(path).height == 3
+    assert [p.name for p in path.parent.iterdir()] == ["data.parquet"]
+
+
+def test_partitioned_table_view():
+    storage.write_table("ingest_summary", _summary(2), partition={"partition": "a"})
+    storage.write_table("ingest_summary", _summary(3), partition={"partition": "b"})
+    with connect() as con:
+        rows = con.sql("SELECT partition, count(*) FROM ingest_summary GROUP BY ALL ORDER BY 1").fetchall()
+    assert rows == [("a", 2), ("b", 3)]
+    file_cols = pl.read_parquet(storage.table_path("ingest_summary", {"partition": "a"})).columns
+    assert "partition" not in file_cols  # the hive key lives in the path only
+
+
+def test_sql_is_read_only(tmp_path):
+    storage.write_table("ingest_summary", _summary())
+    with connect() as con:
+        assert con.sql("SELECT sum(rows) FROM ingest_summary").fetchall()[0][0] == 3
+        for stmt in [
+            "CREATE TABLE x AS SELECT 1",
+            "DROP VIEW ingest_summary",
+            f"COPY (SELECT 1) TO '{tmp_path / 'out.csv'}'",
+            "INSERT INTO ingest_summary VALUES ('a','b','c',1)",
+        ]:
+            with pytest.raises(Exception):
+                con.sql(stmt)
+    assert not (tmp_path / "out.csv").exists()
+
+
+def test_cli_tables_sql_formats(capsys):
+    storage.write_table("ingest_summary", _summary())
+    assert main(["tables"]) == 0
+    assert "ingest_summary" in capsys.readouterr().out
+    assert main(["sql", "SELECT outcome, rows FROM ingest_summary ORDER BY rows", "--format", "csv"]) == 0
+    assert capsys.readouterr().out.splitlines() == ["outcome,rows", "read,0", "read,1", "read,2"]
+    assert main(["sql", "SELECT count(*) AS n FROM ingest_summary", "--format", "json"]) == 0
+    assert '"n": 3' in capsys.readouterr().out
+    assert main(["sql", "DELETE FROM ingest_summary"]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("error:") and len(err.strip().splitlines()) == 1
+
+
+def test_cli_reads_while_a_writer_replaces_files(isolated_home):
+    """Readers never see a half-written file nor a lock error while a writer keeps replacing the table."""
+    storage.write_table("ingest_summary", _summary(1000))
+    writer = subprocess.Popen(
+        [sys.executable, "-c",
+         "import polars as pl; from warehouse.storage import write_table\n"
+         "for i in range(40): write_table('ingest_summary', pl.DataFrame({'source':['f']*1000,'outcome':['read']*1000,'reason':['']*1000,'rows':list(range(1000))}))"],
+        cwd=REPO, env={**__import__("os").environ, "TRAFFICLEARN_HOME": str(isolated_home)},
+    )
+    counts = []
+    while writer.poll() is None:
+        with connect() as con:
+            counts.append(con.sql("SELECT count(*) FROM ingest_summary").fetchall()[0][0])
+    assert writer.returncode == 0
+    assert counts and set(counts) == {1000}
+
+
+def test_data_dictionary_in_readme():
+    readme = (REPO / "README.md").read_text()
+    assert data_dictionary_markdown() in readme, "README data dictionary is stale: python -m warehouse schema --markdown"
+    for name in TABLES:
+        assert f"`{name}`" in readme

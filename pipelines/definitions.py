@@ -18,4 +18,6 @@ defs = dg.Definitions(
     asset_checks=checks.CHECKS,
     jobs=[aviation_data_job],
     resources={"io_manager": ParquetIOManager()},
+    # one process: on 2 cores, a process per step spends more time importing than computing
+    executor=dg.in_process_executor,
 )

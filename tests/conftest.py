@@ -24,16 +24,17 @@ def opensky_raw() -> pl.DataFrame:
 @pytest.fixture(scope="session")
 def opensky_small(opensky_raw, tmp_path_factory) -> Path:
     """Real state vectors of six flights (three per route, before and after 2022-02-27)."""
+    day = pl.col("time").dt.date().alias("day")
     keep = (
-        opensky_raw.group_by("icao24", "callsign")
+        opensky_raw.group_by("icao24", "callsign", day)
         .agg(pl.col("time").min())
         .sort("time")
         .with_columns(route=pl.col("callsign").str.slice(0, 3))
         .group_by("route", maintain_order=True)
-        .agg(pl.col("icao24", "callsign").gather([0, 1, -1]))
-        .explode("icao24", "callsign")
+        .agg(pl.col("icao24", "callsign", "day").gather([0, 1, -1]))
+        .explode("icao24", "callsign", "day")
     )
-    df = opensky_raw.join(keep.select("icao24", "callsign"), on=["icao24", "callsign"])
+    df = opensky_raw.with_columns(day).join(keep.select("icao24", "callsign", "day"), on=["icao24", "callsign", "day"]).drop("day")
     path = tmp_path_factory.mktemp("data") / "six_flights.parquet"
     df.write_parquet(path)
     return path

@@ -54,15 +54,13 @@ def conform(table: str, df: pl.DataFrame) -> pa.Table:
     extra = [n for n in df.columns if n not in schema.names]
     if missing or extra:
         raise SchemaError(f"table '{table}': missing columns {missing}, unexpected columns {extra}")
-    arrow = df.select(schema.names).to_arrow()
-    try:
-        arrow = arrow.cast(schema)
-    except (pa.ArrowInvalid, pa.ArrowTypeError, pa.ArrowNotImplementedError) as e:
-        raise SchemaError(f"table '{table}': {e}") from None
     for field in schema:
-        if not field.nullable and arrow.column(field.name).null_count:
+        if not field.nullable and df[field.name].null_count():
             raise SchemaError(f"table '{table}': column '{field.name}' has nulls but is declared non-null")
-    return arrow
+    try:
+        return df.select(schema.names).to_arrow().cast(schema)
+    except (pa.ArrowInvalid, pa.ArrowTypeError, pa.ArrowNotImplementedError, ValueError) as e:
+        raise SchemaError(f"table '{table}': {e}") from None
 
 
 def write_table(table: str, df: pl.DataFrame, partition: dict[str, str] | None = None) -> Path:

@@ -37,10 +37,13 @@ def _failures(df: pl.DataFrame, bad: pl.Expr, what: str) -> dg.AssetCheckResult:
     )
 
 
-@dg.asset_check(asset="flight_tracks", description="timestamps strictly increase within every flight")
-def flight_tracks_time_monotonic() -> dg.AssetCheckResult:
-    t = read_table("flight_tracks")
-    return _failures(t, (pl.col("ts").diff().over("flight_id") <= pl.duration(0)).fill_null(False), "non_increasing_steps")
+def _monotonic_check(table: str) -> dg.AssetChecksDefinition:
+    @dg.asset_check(asset=table, name="time_strictly_increasing", description="time strictly increases within every flight")
+    def check() -> dg.AssetCheckResult:
+        t = read_table(table)
+        return _failures(t, (pl.col("ts").diff().over("flight_id") <= pl.duration(seconds=0)).fill_null(False), "non_increasing_steps")
+
+    return check
 
 
 @dg.asset_check(asset="ingest_summary", description="rows read = kept + rejected, per source")
@@ -53,12 +56,6 @@ def ingest_rows_accounted() -> dg.AssetCheckResult:
     rejects = read_table("ingest_rejects").height
     ok = per.filter(pl.col("read") != pl.col("accounted")).height == 0 and rejects == s.filter(pl.col("outcome") == "rejected")["rows"].sum()
     return dg.AssetCheckResult(passed=ok, metadata={"sources": dg.MetadataValue.json(per.to_dicts()), "quarantined_rows": rejects})
-
-
-@dg.asset_check(asset="tracks_20s", description="time strictly increases within every flight")
-def tracks_time_monotonic() -> dg.AssetCheckResult:
-    t = read_table("tracks_20s")
-    return _failures(t, (pl.col("ts").diff().over("flight_id") <= pl.duration(0)).fill_null(False), "non_increasing_steps")
 
 
 @dg.asset_check(asset="tracks_20s", description="every step is exactly the configured Δt (the most common step)")
@@ -83,22 +80,19 @@ def tracks_phase_order() -> dg.AssetCheckResult:
     return _failures(t, (pl.col("rank") < 0) | (pl.col("rank").diff().over("flight_id") < 0).fill_null(False), "out_of_order_points")
 
 
-@dg.asset_check(asset="trajectory_modes", description="every mode of a clustered route has at least two flights")
+@dg.asset_check(asset="trajectory_modes", description="every mode of a route split into several modes has at least two flights")
 def modes_min_flights() -> dg.AssetCheckResult:
-    m = read_table("trajectory_modes").filter(pl.col("n_modes") > 1)
-    sizes = m.group_by("route", "phase", "mode").agg(flights=pl.len())
-    small = sizes.filter(pl.col("flights") < 2)
+    sizes = read_table("trajectory_modes").group_by("route", "phase", "mode", "n_modes").agg(flights=pl.len())
+    small = sizes.filter((pl.col("n_modes") > 1) & (pl.col("flights") < 2)).drop("n_modes").sort("route", "phase", "mode")
     return dg.AssetCheckResult(
         passed=small.height == 0,
         severity=dg.AssetCheckSeverity.WARN,
-        metadata={"smallest_mode": int(sizes["flights"].min() or 0), "modes_below_2": dg.MetadataValue.json(small.to_dicts())},
+        metadata={"smallest_mode": int(sizes["flights"].min()), "modes_below_2": dg.MetadataValue.json(small.to_dicts())},
     )
 
 
-CHECKS = [_schema_check(t) for t in AVIATION_TABLES] + [
-    flight_tracks_time_monotonic,
+CHECKS = [_schema_check(t) for t in AVIATION_TABLES] + [_monotonic_check(t) for t in ("flight_tracks", "tracks_20s")] + [
     ingest_rows_accounted,
-    tracks_time_monotonic,
     tracks_exact_step,
     tracks_no_missing_values,
     tracks_phase_order,

@@ -1,0 +1,56 @@
+"""`make dev`: the Dagster UI comes up on 127.0.0.1 and Ctrl-C (SIGINT) stops it and its children cleanly."""
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+import urllib.request
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_dev_server_starts_and_stops_on_sigint(isolated_home):
+    port = _free_port()
+    dagster_home = isolated_home / "dagster"
+    dagster_home.mkdir(parents=True)
+    (dagster_home / "dagster.yaml").write_text((REPO / "dagster.yaml").read_text())
+    env = {**os.environ, "DAGSTER_HOME": str(dagster_home), "TRAFFICLEARN_UI_PORT": str(port)}
+    # started the way a background job of a script is: with SIGINT ignored
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "pipelines.dev"], cwd=REPO, env=env,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN), start_new_session=True,
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    )
+    try:
+        deadline = time.time() + 120
+        up = False
+        while time.time() < deadline and proc.poll() is None:
+            try:
+                with urllib.request.urlopen(f"http://127.0.0.1:{port}/server_info", timeout=2) as r:
+                    up = r.status == 200
+                    break
+            except OSError:
+                time.sleep(1)
+        assert up, "Dagster UI did not come up on 127.0.0.1"
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=60) == 0 or proc.returncode in (-signal.SIGINT, 130)
+        # the webserver, daemon and code server go too: nothing of the process group is left behind
+        deadline = time.time() + 30
+        while time.time() < deadline:
+            alive = subprocess.run(["pgrep", "-g", str(proc.pid)], capture_output=True, text=True).stdout.split()
+            if not alive:
+                break
+            time.sleep(0.5)
+        assert alive == []
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)

@@ -7,6 +7,9 @@ import polars as pl
 import pytest
 from sklearn.metrics import adjusted_rand_score
 
+from models.aviation.airports import flights_table
+from models.aviation.ingest import ingest
+from models.aviation.phases import assign_phases
 from models.aviation.modes import (
     MODES_SCHEMA,
     cluster_series,
@@ -25,57 +28,22 @@ from models.aviation.plots import (
     tracks_map_by_mode,
 )
 from models.aviation.recording import read_recording_summary, write_modes_recording
+from models.aviation.resample import resample
 
 OPENSKY = Path(__file__).resolve().parent.parent / "data" / "opensky" / "kaliningrad_2022-02-22_2022-03-05.parquet"
 CLOSURE = pl.Series(["2022-02-27"]).str.to_datetime(time_zone="UTC")[0]
 
 
-def crude_tracks(path: Path = OPENSKY) -> tuple[pl.DataFrame, pl.DataFrame]:
-    """Stand-in for the real ingest/resample/phase pipeline: (tracks, flights) in the modes input contract.
-
-    One point per 20 s bucket (the first), airborne points with a plausible altitude, flight = callsign
-    and UTC day; phases by a crude rule: cruise between the first and last point above 85 % of the
-    flight's 90th-percentile altitude, climb before, descent after.
-    """
-    pts = (
-        pl.read_parquet(path)
-        .drop_nulls(["lat", "lon", "baroaltitude"])
-        .filter(pl.col("baroaltitude") <= 15_000, ~pl.col("onground"))
-        .with_columns(
-            flight_id=pl.col("callsign").str.strip_chars() + "_" + pl.col("time").dt.strftime("%Y%m%d"),
-            ts=pl.col("time").dt.cast_time_unit("us").dt.truncate("20s"),
-        )
-        .sort("flight_id", "time")
-        .unique(["flight_id", "ts"], keep="first", maintain_order=True)
-        .select("flight_id", "ts", "lat", "lon", alt_m=pl.col("baroaltitude"))
-    )
-    idx = pl.int_range(pl.len()).over("flight_id")
-    high = pl.col("alt_m") >= 0.85 * pl.col("alt_m").quantile(0.9).over("flight_id")
-    first_high = pl.when(high).then(idx).min().over("flight_id")
-    last_high = pl.when(high).then(idx).max().over("flight_id")
-    tracks = pts.with_columns(
-        phase=pl.when(idx < first_high)
-        .then(pl.lit("climb"))
-        .when(idx > last_high)
-        .then(pl.lit("descent"))
-        .otherwise(pl.lit("cruise"))
-    )
-    flights = (
-        tracks.group_by("flight_id")
-        .agg(first_ts=pl.col("ts").min())
-        .with_columns(
-            route=pl.when(pl.col("flight_id").str.starts_with("AFL"))
-            .then(pl.lit("UUEE-UMKK"))
-            .otherwise(pl.lit("ULLI-UMKK"))
-        )
-        .sort("flight_id")
-    )
-    return tracks, flights
+def pipeline_tracks(path: Path = OPENSKY) -> tuple[pl.DataFrame, pl.DataFrame]:
+    """The real pipeline up to phases: ingest -> airports -> 20 s tracks -> phases."""
+    tracks, _, _ = ingest(path)
+    flights = flights_table(tracks)
+    return assign_phases(resample(tracks), flights), flights
 
 
 @pytest.fixture(scope="module")
 def real():
-    tracks, flights = crude_tracks()
+    tracks, flights = pipeline_tracks()
     modes, clusterings = trajectory_modes(tracks, flights)
     return tracks, flights, modes, clusterings
 
@@ -241,3 +209,14 @@ def test_rerun_recording_is_written_atomically_and_rereadable(real, tmp_path):
     assert entity in summary["entities"] and f"{entity}/aircraft" in summary["entities"]
     n_flights = modes.filter(pl.col("phase") == "all").height
     assert sum(e.startswith("/tracks/") and e.endswith("/aircraft") for e in summary["entities"]) == n_flights
+
+
+def test_one_minute_dtw_resolution_finds_the_same_modes(real):
+    """The default stride (DTW on 1-min points) must not change the modes found on every 20 s point."""
+    tracks, flights, modes, _ = real
+    on_route = flights.filter(pl.col("route") == "UUEE-UMKK")
+    full, _ = trajectory_modes(tracks, on_route, stride=1)
+    both = full.join(modes, on=["flight_id", "phase"], suffix="_stride3")
+    for phase in ("all", "cruise"):
+        d = both.filter(pl.col("phase") == phase)
+        assert adjusted_rand_score(d["mode"], d["mode_stride3"]) == 1.0

@@ -14,6 +14,9 @@ from warehouse.artifacts import artifact_path, save_plot
 class ModesConfig(dg.Config):
     max_modes: int = Field(default=8, description="largest cluster count the silhouette search tries")
     min_flights: int = Field(default=3, description="a route with fewer flights gets a single mode")
+    dtw_stride: int = Field(
+        default=3, description="DTW on every n-th point of the constant-step tracks (3 = one point a minute at 20 s; 1 = all)"
+    )
     reference_date: str | None = Field(
         default="2022-02-27",
         description="if set, metadata reports how well the whole-trajectory modes separate flights before/after "
@@ -24,7 +27,9 @@ class ModesConfig(dg.Config):
 
 @dg.asset(group_name="aviation", description="Mode of every flight per phase and for the whole trajectory (phase = all).")
 def trajectory_modes(context: dg.AssetExecutionContext, config: ModesConfig, tracks_20s: pl.DataFrame, flights: pl.DataFrame):
-    modes, clusterings = cluster_modes(tracks_20s, flights, max_modes=config.max_modes, min_flights=config.min_flights)
+    modes, clusterings = cluster_modes(
+        tracks_20s, flights, max_modes=config.max_modes, min_flights=config.min_flights, stride=config.dtw_stride
+    )
     n_modes = {f"{route} {phase}": c.n_modes for (route, phase), c in clusterings.items()}
     context.log.info("modes per route and phase: " + ", ".join(f"{k}={v}" for k, v in n_modes.items()))
     metadata = {"n_modes": dg.MetadataValue.json(n_modes)}

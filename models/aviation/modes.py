@@ -19,6 +19,11 @@ within the set (e.g. latitude on an east-west route) is stretched as much as one
 
 Clustering runs per route (a mode is a way of flying *that* route) for the whole trajectory
 (phase "all") and for each phase's sub-trajectory (climb, cruise, descent).
+
+Resolution: DTW costs O(L^2) per pair, and a mode is a route-scale shape (modes differ by tens of NM), so
+the distances use every `stride`-th point of the constant-step tracks (default 3: one point a minute at
+20 s, ~8 NM apart at cruise speed), which cuts the DP cells ninefold. The DTW itself stays exact;
+stride=1 uses every point.
 """
 
 from __future__ import annotations
@@ -89,8 +94,9 @@ def normalised_dtw_matrix(series: list[np.ndarray], window: int | None = None) -
     """Square matrix of DTW(Li, Lj) / sqrt(d * max(|Li|, |Lj|)) (Eq 7.4) for (L_i, d) arrays already scaled.
 
     Exact DTW by default. `window` (Sakoe-Chiba band, in steps) is *not* exact: it forbids warping more
-    than `window` steps off the diagonal (only worth it for sets far larger than a route's flights;
-    30 steps = 10 min at 20 s is ~2.5x faster and changed a few % of distances by up to ~80 % in a test).
+    than `window` steps off the diagonal, so distances can only grow. Only worth it for sets far larger
+    than a route's flights: on 1,000 sub-trajectories of 150-300 points, window=30 (10 min at 20 s)
+    halved the time, raised 28 % of the distances (median +2 %, max +119 %) and gave the same clusters.
     """
     n = len(series)
     if n < 2:
@@ -120,7 +126,7 @@ class ModeClustering:
     labels: 0-based mode per series, renumbered by cluster size (0 = largest).
     silhouette: score of the chosen cut; None when no cut could be scored (fewer than 3 series).
     silhouette_curve: k -> silhouette for every k tried.
-    linkage: scipy linkage matrix (n-1, 4); None when there is nothing to merge (n < 2).
+    linkage: scipy linkage matrix (n-1, 4); None when not clustered (n < 2, or fewer than min_flights).
     flight_ids: the flight of each series, in the order of `labels` (empty if clustered anonymously).
     """
 
@@ -235,12 +241,13 @@ def _scaled_series(points: pl.DataFrame) -> tuple[tuple[str, ...], list[np.ndarr
 
 
 def trajectory_modes(
-    tracks: pl.DataFrame, flights: pl.DataFrame, max_modes: int = 8, min_flights: int = 3
+    tracks: pl.DataFrame, flights: pl.DataFrame, max_modes: int = 8, min_flights: int = 3, stride: int = 3
 ) -> tuple[pl.DataFrame, dict[tuple[str, str], ModeClustering]]:
     """Mode of every flight, per route, for the whole trajectory (phase "all") and per phase.
 
     A route with fewer than `min_flights` flights (for that phase) gets a single mode 0 without a
-    silhouette. A flight with fewer than two points in a phase gets no row for that phase.
+    silhouette. A flight with fewer than two points in a phase gets no row for that phase. DTW uses
+    every `stride`-th point of each flight (see the module docstring).
     Returns the table (columns of MODES_SCHEMA) and the clusterings by (route, phase).
     """
     pts = (
@@ -248,6 +255,7 @@ def trajectory_modes(
         .drop_nulls([*FEATURES])
         .join(flights.select("flight_id", "route"), on="flight_id", how="inner")
         .sort("flight_id", "ts")
+        .filter(pl.int_range(pl.len()).over("flight_id") % max(stride, 1) == 0)
     )
     rows: list[pl.DataFrame] = []
     clusterings: dict[tuple[str, str], ModeClustering] = {}

@@ -28,7 +28,8 @@ SCALED_FLIGHTS = int(os.environ.get("TRAFFICLEARN_BENCH_FLIGHTS", "10000"))
 # keep every STEP_S-th second of the raw 1 s state vectors before replicating (memory: see README)
 STEP_S = int(os.environ.get("TRAFFICLEARN_BENCH_STEP_S", "5"))
 TRAFFIC_SUBSET_FLIGHTS = int(os.environ.get("TRAFFICLEARN_BENCH_TRAFFIC_FLIGHTS", "500"))
-TRAFFIC_WORKERS = int(os.environ.get("TRAFFICLEARN_BENCH_TRAFFIC_WORKERS", "1"))
+# traffic gets as many worker processes as we have cores (polars uses them all too)
+TRAFFIC_WORKERS = int(os.environ.get("TRAFFICLEARN_BENCH_TRAFFIC_WORKERS", "0")) or len(os.sched_getaffinity(0))
 DTW_SERIES = int(os.environ.get("TRAFFICLEARN_BENCH_DTW_SERIES", "1000"))
 
 TARGET_10K_S = 60.0
@@ -58,7 +59,7 @@ def warn_if_busy(label: str) -> float:
     load = os.getloadavg()[0]
     cores = os.cpu_count() or 1
     if load > 0.5 * cores:
-        print(f"WARN {label}: load average {load:.1f} on {cores} cores before timing: other processes compete, timings are pessimistic")
+        print(f"\nWARN {label}: load average {load:.1f} on {cores} cores before timing: other processes compete, timings are pessimistic")
     return load
 
 

@@ -1,6 +1,6 @@
 # trafficlearn: `make demo` builds everything on the bundled real data, `make test` runs the test suite.
 SHELL := /bin/bash
-PYTHON ?= python3.11
+PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV := .venv
 PY := $(VENV)/bin/python
 export TRAFFICLEARN_HOME ?= $(CURDIR)/var
@@ -10,9 +10,8 @@ export PYTHONUNBUFFERED := 1
 .PHONY: demo test bench dev tables clean
 
 $(VENV)/.installed: pyproject.toml
-	@command -v $(PYTHON) >/dev/null || { echo "error: $(PYTHON) not found (trafficlearn needs Python 3.11)"; exit 1; }
+	@$(PYTHON) -c "import sys; sys.exit(sys.version_info[:2] != (3, 11))" 2>/dev/null || { echo "error: trafficlearn needs Python 3.11 (set PYTHON=/path/to/python3.11)"; exit 1; }
 	$(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e '.[dev]'
 	touch $@
 

@@ -26,9 +26,14 @@ demo: $(VENV)/.installed $(DAGSTER_HOME)/dagster.yaml
 test: $(VENV)/.installed
 	$(PY) -m pytest tests --ignore=tests/bench -q
 
-bench: $(VENV)/.installed
-	$(PY) -m pip install --quiet -e '.[dev,bench]'
-	$(PY) -m pytest tests/bench -q -s
+# `traffic` (the comparison baseline) pins pandas/numpy versions of its own, so it gets a venv of its own.
+.venv-bench/.installed:
+	$(PYTHON) -m venv .venv-bench
+	.venv-bench/bin/python -m pip install --quiet 'traffic==2.13' 'pandas>=2.2,<3'
+	touch $@
+
+bench: $(VENV)/.installed .venv-bench/.installed
+	TRAFFICLEARN_BENCH_TRAFFIC_PYTHON=$(CURDIR)/.venv-bench/bin/python $(PY) -m pytest tests/bench -q -s
 
 dev: $(VENV)/.installed $(DAGSTER_HOME)/dagster.yaml
 	$(PY) -m pipelines.dev

@@ -78,7 +78,7 @@ def real_baseline(bench_results) -> b.ChainRun:
     }
     print(
         f"\nBENCH raw->phases {best.flights} real flights ({best.rows_read:,} rows at 1 s): {b.fmt_s(best.total)} "
-        f"(best of 3; ingest {b.fmt_s(best.seconds['ingest'])}, flights {b.fmt_s(best.seconds['flights_table'])}, "
+        f"(best of 3; CPU {b.fmt_s(best.cpu_s)}; ingest {b.fmt_s(best.seconds['ingest'])}, flights {b.fmt_s(best.seconds['flights_table'])}, "
         f"20 s grid {b.fmt_s(best.seconds['resample_20s'])}, phases {b.fmt_s(best.seconds['phases'])}; "
         f"{1000 * best.total / best.flights:.1f} ms/flight)"
     )
@@ -86,7 +86,7 @@ def real_baseline(bench_results) -> b.ChainRun:
 
 
 @pytest.fixture(scope="session")
-def scaled_10k(tmp_path_factory, bench_results) -> dict:
+def scaled_10k(tmp_path_factory, bench_results):
     """>= 10,000 flights of perturbed, time-shifted copies of the real data, written to Parquet (untimed)."""
     path = tmp_path_factory.mktemp("bench") / f"scaled_{b.SCALED_FLIGHTS}_flights.parquet"
     t = time.perf_counter()
@@ -97,4 +97,5 @@ def scaled_10k(tmp_path_factory, bench_results) -> dict:
         f"in {time.perf_counter() - t:.1f} s (not timed as pipeline work)"
     )
     bench_results["scaled_set"] = info
-    return info
+    yield info
+    path.unlink(missing_ok=True)  # 370 MB; pytest keeps its last three temporary folders

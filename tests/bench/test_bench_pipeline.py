@@ -32,7 +32,7 @@ def test_raw_to_phases_10k_flights(scaled_10k, real_baseline, bench_results):
     }
     print(
         f"\nBENCH raw->phases {run.flights:,} flights ({run.rows_read:,} rows): {b.fmt_s(run.total)} "
-        f"(target < {b.TARGET_10K_S:.0f} s, {run.total / b.TARGET_10K_S:.2f}x the budget; "
+        f"(target < {b.TARGET_10K_S:.0f} s, {run.total / b.TARGET_10K_S:.2f}x the budget; CPU {b.fmt_s(run.cpu_s)}; "
         f"ingest {b.fmt_s(run.seconds['ingest'])}, flights {b.fmt_s(run.seconds['flights_table'])}, "
         f"20 s grid {b.fmt_s(run.seconds['resample_20s'])}, phases {b.fmt_s(run.seconds['phases'])}; "
         f"{run.grid_rows:,} grid rows; {1000 * per_flight:.1f} ms/flight vs {1000 * base_per_flight:.1f} ms/flight "

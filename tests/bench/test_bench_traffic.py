@@ -21,7 +21,7 @@ import benchlib as b
 WORKERS = b.TRAFFIC_WORKERS
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def traffic_exe(bench_results) -> str:
     exe, info = b.traffic_python()
     if exe is None:
@@ -61,7 +61,7 @@ def _compare(label: str, ours_s: float, ours_flights: int, tr: dict, bench_resul
     return ratio
 
 
-def test_ours_vs_traffic_real_flights(real_baseline, traffic_exe, bench_results):
+def test_ours_vs_traffic_real_flights(traffic_exe, real_baseline, bench_results):
     load = b.warn_if_busy("traffic on 93 real flights")
     tr = b.run_traffic(traffic_exe, b.OPENSKY, repeat=2, workers=WORKERS)
     ratio = _compare(
@@ -73,7 +73,7 @@ def test_ours_vs_traffic_real_flights(real_baseline, traffic_exe, bench_results)
     assert ratio >= b.TARGET_TRAFFIC_RATIO, f"ours is {ratio:.1f}x faster than traffic on the real flights, target >= 20x"
 
 
-def test_ours_vs_traffic_scaled_subset(tmp_path_factory, traffic_exe, real_baseline, bench_results):
+def test_ours_vs_traffic_scaled_subset(traffic_exe, tmp_path_factory, bench_results):
     path = tmp_path_factory.mktemp("bench_traffic") / "scaled_subset.parquet"
     info = b.write_scaled(path, b.TRAFFIC_SUBSET_FLIGHTS, b.STEP_S, seed=1)
     load = b.warn_if_busy(f"ours vs traffic on {info['source_flights']} scaled flights")

@@ -6,6 +6,9 @@ PY := $(VENV)/bin/python
 export TRAFFICLEARN_HOME ?= $(CURDIR)/var
 export DAGSTER_HOME := $(TRAFFICLEARN_HOME)/dagster
 export PYTHONUNBUFFERED := 1
+export TRAFFICLEARN_PROFILE ?= $(or $(PROFILE),demo)
+# asset groups `make demo` materialises, in order
+DEMO_GROUPS := aviation
 
 .PHONY: demo test bench dev tables clean
 
@@ -20,7 +23,7 @@ $(DAGSTER_HOME)/dagster.yaml: dagster.yaml
 	cp dagster.yaml $@
 
 demo: $(VENV)/.installed $(DAGSTER_HOME)/dagster.yaml
-	$(VENV)/bin/dagster asset materialize -m pipelines.definitions --select 'group:aviation'
+	for group in $(DEMO_GROUPS); do $(VENV)/bin/dagster asset materialize -m pipelines.definitions --select "group:$$group" || exit 1; done
 	$(PY) -m warehouse tables
 
 test: $(VENV)/.installed

@@ -1,22 +1,19 @@
-"""The one Dagster code location: `dagster dev` / `dagster asset materialize -m pipelines.definitions`."""
+"""The one Dagster code location: `dagster dev` / `dagster asset materialize -m pipelines.definitions`.
+
+Each system's assets package (`assets/<system>/__init__.py`) exposes ASSETS, CHECKS and JOBS.
+"""
 
 import dagster as dg
 
-from assets.aviation import checks, ingest, modes, tracks, weather
+from assets import aviation, dcb, trajectory, urban
 from warehouse.io_manager import ParquetIOManager
 
-aviation_assets = dg.load_assets_from_modules([ingest, weather, tracks, modes])
-
-aviation_data_job = dg.define_asset_job(
-    "aviation_data",
-    selection=dg.AssetSelection.groups("aviation"),
-    description="Ingest flights and weather, resample to constant steps, segment phases, cluster modes, split.",
-)
+SYSTEMS = (aviation, trajectory, urban, dcb)
 
 defs = dg.Definitions(
-    assets=aviation_assets,
-    asset_checks=checks.CHECKS,
-    jobs=[aviation_data_job],
+    assets=[a for s in SYSTEMS for a in s.ASSETS],
+    asset_checks=[c for s in SYSTEMS for c in s.CHECKS],
+    jobs=[j for s in SYSTEMS for j in s.JOBS],
     resources={"io_manager": ParquetIOManager()},
     # one process: on 2 cores, a process per step spends more time importing than computing
     executor=dg.in_process_executor,

@@ -2,31 +2,15 @@
 
 import dagster as dg
 import polars as pl
-import pyarrow.parquet as pq
 
 from models.aviation.phases import PHASES
-from warehouse.schemas import TABLES
-from warehouse.storage import read_table, table_path
+from assets.checks import schema_checks
+from warehouse.storage import read_table
 
 AVIATION_TABLES = (
     "flight_tracks", "flights", "ingest_rejects", "ingest_summary", "weather",
     "tracks_20s", "flight_phases", "trajectory_modes", "flight_splits",
 )
-
-
-def _schema_check(table: str) -> dg.AssetChecksDefinition:
-    @dg.asset_check(asset=table, name="schema_matches_declaration", description=f"{table} has exactly its declared schema")
-    def check() -> dg.AssetCheckResult:
-        found = pq.read_schema(table_path(table))
-        declared = TABLES[table].schema
-        diffs = [
-            f"{f.name}: {found.field(f.name).type if f.name in found.names else 'missing'} != {f.type}"
-            for f in declared
-            if f.name not in found.names or found.field(f.name).type != f.type
-        ]
-        return dg.AssetCheckResult(passed=not diffs and found.names == declared.names, metadata={"differences": dg.MetadataValue.json(diffs)})
-
-    return check
 
 
 def _failures(df: pl.DataFrame, bad: pl.Expr, what: str) -> dg.AssetCheckResult:
@@ -91,7 +75,7 @@ def modes_min_flights() -> dg.AssetCheckResult:
     )
 
 
-CHECKS = [_schema_check(t) for t in AVIATION_TABLES] + [_monotonic_check(t) for t in ("flight_tracks", "tracks_20s")] + [
+CHECKS = schema_checks(AVIATION_TABLES) + [_monotonic_check(t) for t in ("flight_tracks", "tracks_20s")] + [
     ingest_rows_accounted,
     tracks_exact_step,
     tracks_no_missing_values,

@@ -1,0 +1,5 @@
+"""Trajectory-imitation assets (issue 3): exposes ASSETS, CHECKS and JOBS for pipelines.definitions."""
+
+ASSETS: list = []
+CHECKS: list = []
+JOBS: list = []

@@ -1,0 +1,7 @@
+"""Tables of the trajectory-imitation models (issue 3)."""
+
+import pyarrow as pa  # noqa: F401
+
+from warehouse.table import TS, Table, col  # noqa: F401
+
+TABLES: list[Table] = []

@@ -5,10 +5,10 @@ Each system's assets package (`assets/<system>/__init__.py`) exposes ASSETS, CHE
 
 import dagster as dg
 
-from assets import aviation, dcb, trajectory, urban
+from assets import applearn, aviation, dcb, trajectory, urban
 from warehouse.io_manager import ParquetIOManager
 
-SYSTEMS = (aviation, trajectory, urban, dcb)
+SYSTEMS = (aviation, trajectory, applearn, urban, dcb)
 
 defs = dg.Definitions(
     assets=[a for s in SYSTEMS for a in s.ASSETS],

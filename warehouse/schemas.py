@@ -6,9 +6,9 @@ Units live in the column name where they could be ambiguous (alt_m, speed_mps) a
 """
 
 from warehouse.table import Column, Table
-from warehouse.tables import aviation, dcb, trajectory, urban
+from warehouse.tables import applearn, aviation, dcb, trajectory, urban
 
-SYSTEMS = {"aviation": aviation, "trajectory": trajectory, "urban": urban, "dcb": dcb}
+SYSTEMS = {"aviation": aviation, "trajectory": trajectory, "applearn": applearn, "urban": urban, "dcb": dcb}
 
 TABLES: dict[str, Table] = {t.name: t for module in SYSTEMS.values() for t in module.TABLES}
 

@@ -223,99 +223,111 @@ def check_units(df: pl.DataFrame, schema: Schema, source: str) -> None:
 # --------------------------------------------------------------------------------------------- cleaning
 
 
-def _haversine_m(lat1, lon1, lat2, lon2) -> pl.Expr:
+def _leg_m(lat1, lon1, lat2, lon2) -> pl.Expr:
+    """Equirectangular distance: within 0.5 % of great-circle for legs under 500 km, at a third of
+    haversine's cost, which is plenty for an impossible-speed test."""
     r = 6_371_000.0
-    dlat = (lat2 - lat1).radians()
-    dlon = (lon2 - lon1).radians()
-    a = (dlat / 2).sin() ** 2 + lat1.radians().cos() * lat2.radians().cos() * (dlon / 2).sin() ** 2
-    return 2 * r * a.sqrt().arcsin()
+    dlon = ((lon2 - lon1 + 180.0) % 360.0 - 180.0).radians() * ((lat1 + lat2) / 2).radians().cos()
+    return r * ((lat2 - lat1).radians() ** 2 + dlon**2).sqrt()
 
 
-def _spike(prev: str, nxt: str) -> pl.Expr:
-    """An isolated point the aircraft could not have reached and left again (both legs impossible)."""
-    return pl.col(prev).fill_null(0.0) & pl.col(nxt).fill_null(0.0)
+def _prev(c: str) -> pl.Expr:
+    """Value of the previous row of the same aircraft (rows sorted by aircraft, `_ac` = run id of icao24).
+
+    A shift guarded by the run id is the same as `shift(1).over("icao24")` on sorted rows, without a window."""
+    return pl.when(pl.col("_ac") == pl.col("_ac").shift(1)).then(pl.col(c).shift(1))
+
+
+def _next(c: str) -> pl.Expr:
+    return pl.when(pl.col("_ac") == pl.col("_ac").shift(-1)).then(pl.col(c).shift(-1))
 
 
 def _speed_spike(cfg: IngestConfig) -> pl.Expr:
-    by = "icao24"
-    dt_prev = (pl.col("ts") - pl.col("ts").shift(1).over(by)).dt.total_microseconds() / 1e6
-    dt_next = (pl.col("ts").shift(-1).over(by) - pl.col("ts")).dt.total_microseconds() / 1e6
-    d_prev = _haversine_m(pl.col("lat"), pl.col("lon"), pl.col("lat").shift(1).over(by), pl.col("lon").shift(1).over(by))
-    d_next = _haversine_m(pl.col("lat"), pl.col("lon"), pl.col("lat").shift(-1).over(by), pl.col("lon").shift(-1).over(by))
-    h_prev = (pl.col("alt_m") - pl.col("alt_m").shift(1).over(by)).abs()
-    h_next = (pl.col("alt_m").shift(-1).over(by) - pl.col("alt_m")).abs()
+    """An isolated point the aircraft could not have reached and left again (both legs impossible).
+
+    Each leg is computed once, as the leg from the previous point; the leg to the next point is the next
+    row's, which is null across an aircraft boundary because `_prev` is."""
+    dt_in = ((pl.col("ts") - _prev("ts")).dt.total_microseconds() / 1e6).clip(lower_bound=1.0)
     # 1 s floor on dt: OpenSky timestamps are whole seconds, a 0 s step would make every move "infinite"
-    fast = lambda d, dt, lim: (d / dt.clip(lower_bound=1.0)) > lim  # noqa: E731
-    return (fast(d_prev, dt_prev, cfg.max_speed_mps) & fast(d_next, dt_next, cfg.max_speed_mps)).fill_null(False) | (
-        fast(h_prev, dt_prev, cfg.max_climb_mps) & fast(h_next, dt_next, cfg.max_climb_mps)
-    ).fill_null(False)
+    too_fast = _leg_m(_prev("lat"), _prev("lon"), pl.col("lat"), pl.col("lon")) / dt_in > cfg.max_speed_mps
+    too_steep = (pl.col("alt_m") - _prev("alt_m")).abs() / dt_in > cfg.max_climb_mps
+    spike = lambda leg: (leg & leg.shift(-1)).fill_null(False)  # noqa: E731
+    return spike(too_fast) | spike(too_steep)
 
 
-def _row_rules(cfg: IngestConfig) -> list[tuple[str, pl.Expr]]:
-    """(reason, expression true for rows to reject), applied in order to the rows still kept."""
-    by = "icao24"
+def _row_rules(cfg: IngestConfig) -> list[list[tuple[str, pl.Expr]]]:
+    """Stages of (reason, expression true for rows to reject). Within a stage the first matching reason
+    wins and all rules see the same rows; a stage sees only the rows the previous stages kept.
+
+    Rows are sorted by (icao24, ts, row_index), so a duplicate is a row equal to its predecessor and the
+    first of the duplicates (lowest row_index) is the one kept."""
     return [
-        ("missing_value", pl.any_horizontal(pl.col("ts", "icao24", "lat", "lon", "alt_m").is_null())),
-        ("duplicate_row", pl.struct("icao24", "ts").is_duplicated() & ~pl.struct("icao24", "ts").is_first_distinct()),
-        ("on_ground", pl.col("onground").fill_null(False)),
-        (
-            "out_of_range",
-            ~pl.col("lat").is_between(-90, 90)
-            | ~pl.col("lon").is_between(-180, 180)
-            | ~pl.col("alt_m").is_between(cfg.min_alt_m, cfg.max_alt_m)
-            | (pl.col("groundspeed_mps").fill_null(0) > 2 * cfg.max_speed_mps),
-        ),
+        [("missing_value", pl.any_horizontal(pl.col("ts", "icao24", "lat", "lon", "alt_m").is_null()))],
+        [
+            ("duplicate_row", (pl.col("ts") == _prev("ts")).fill_null(False)),
+            ("on_ground", pl.col("onground").fill_null(False)),
+            (
+                "out_of_range",
+                ~pl.col("lat").is_between(-90, 90)
+                | ~pl.col("lon").is_between(-180, 180)
+                | ~pl.col("alt_m").is_between(cfg.min_alt_m, cfg.max_alt_m)
+                | (pl.col("groundspeed_mps").fill_null(0) > 2 * cfg.max_speed_mps),
+            ),
+        ],
         # OpenSky repeats the last position until a new one arrives: keep only received positions
-        (
-            "repeated_position",
-            pl.when(pl.col("pos_time").is_not_null())
-            .then(pl.col("pos_time") == pl.col("pos_time").shift(1).over(by))
-            .otherwise((pl.col("lat") == pl.col("lat").shift(1).over(by)) & (pl.col("lon") == pl.col("lon").shift(1).over(by)))
-            .fill_null(False),
-        ),
-        ("speed_spike", _speed_spike(cfg)),
+        [
+            (
+                "repeated_position",
+                pl.when(pl.col("pos_time").is_not_null())
+                .then(pl.col("pos_time") == _prev("pos_time"))
+                .otherwise((pl.col("lat") == _prev("lat")) & (pl.col("lon") == _prev("lon")))
+                .fill_null(False),
+            )
+        ],
+        [("speed_spike", _speed_spike(cfg))],
     ]
 
 
 def _split_flights(kept: pl.DataFrame, cfg: IngestConfig) -> pl.DataFrame:
-    gap = (pl.col("ts") - pl.col("ts").shift(1).over("icao24")).dt.total_seconds(fractional=True)
-    callsign_changed = (pl.col("callsign") != pl.col("callsign").shift(1).over("icao24")).fill_null(False)
-    new = (gap.is_null() | (gap > cfg.gap_split_s) | callsign_changed).cast(pl.Int64)
-    return (
-        kept.with_columns(pl.col("callsign").fill_null(strategy="forward").over("icao24"))
-        .with_columns(segment=new.cum_sum())
-        .with_columns(
-            flight_id=pl.concat_str(
-                pl.col("callsign").fill_null(pl.col("icao24")).first().over("segment"),
-                pl.col("icao24"),
-                pl.col("ts").first().over("segment").dt.strftime("%Y%m%dT%H%M"),
-                separator="_",
-            )
-        )
+    """Number the flights (a new one at an aircraft's first point, after a long gap or a callsign change)
+    and name them callsign_icao24_YYYYMMDDTHHMM from their first point; names are built once per flight."""
+    kept = kept.with_columns(pl.col("callsign").fill_null(strategy="forward").over("_ac"))
+    gap = (pl.col("ts") - _prev("ts")).dt.total_seconds(fractional=True)
+    callsign_changed = (pl.col("callsign") != _prev("callsign")).fill_null(False)
+    new = gap.is_null() | (gap > cfg.gap_split_s) | callsign_changed
+    kept = kept.with_columns(_new=new).with_columns(segment=pl.col("_new").cum_sum())
+    names = kept.filter("_new").select(
+        "segment",
+        flight_id=pl.concat_str(
+            pl.col("callsign").fill_null(pl.col("icao24")), pl.col("icao24"), pl.col("ts").dt.strftime("%Y%m%dT%H%M"), separator="_"
+        ),
     )
+    # the rank of the name lets the final sort by (flight_id, ts) compare integers instead of strings
+    names = names.with_columns(flight_rank=pl.col("flight_id").rank("dense"))
+    return kept.drop("_new").join(names, on="segment", how="left", maintain_order="left")
 
 
 def clean(raw: pl.DataFrame, source: str, cfg: IngestConfig = IngestConfig()) -> tuple[pl.DataFrame, pl.DataFrame]:
     """Normalised rows -> (cleaned points with flight_id, rejects with reason). Every row ends in one."""
-    kept = raw.sort("icao24", "ts", "row_index", nulls_last=True)
+    kept = raw.sort("icao24", "ts", "row_index", nulls_last=True).with_columns(_ac=pl.col("icao24").rle_id())
     rejected = []
-    for reason, rule in _row_rules(cfg):
-        kept = kept.with_columns(_bad=rule)
-        rejected.append(kept.filter("_bad").with_columns(reason=pl.lit(reason)))
-        kept = kept.filter(~pl.col("_bad"))
-    kept = _split_flights(kept.drop("_bad"), cfg)
-    short = pl.len().over("flight_id") < cfg.min_points
+    for stage in _row_rules(cfg):
+        kept = kept.with_columns(reason=pl.coalesce(pl.when(rule).then(pl.lit(reason)) for reason, rule in stage))
+        rejected.append(kept.filter(pl.col("reason").is_not_null()))
+        kept = kept.filter(pl.col("reason").is_null())
+    kept = _split_flights(kept.drop("reason"), cfg)
+    short = pl.len().over("segment") < cfg.min_points
     rejected.append(kept.filter(short).with_columns(reason=pl.lit("short_segment")))
-    kept = kept.filter(~short).drop("segment")
+    kept = kept.filter(~short)
     rejects = pl.concat(
         [r.select("row_index", "reason", "icao24", "callsign", "ts", "lat", "lon", "alt_m") for r in rejected]
     ).with_columns(source=pl.lit(source))
     tracks = kept.select(
-        "flight_id", "ts", "icao24", "callsign", "lat", "lon", "alt_m", "groundspeed_mps", "track_deg", "vertical_rate_mps"
+        "flight_rank", "flight_id", "ts", "icao24", "callsign", "lat", "lon", "alt_m", "groundspeed_mps", "track_deg", "vertical_rate_mps"
     )
     # a flight without a callsign keeps the icao24 as its callsign so that downstream keys are never null
     tracks = tracks.with_columns(pl.col("callsign").fill_null(pl.col("icao24")))
-    return tracks.sort("flight_id", "ts"), rejects.sort("row_index")
+    return tracks.sort("flight_rank", "ts").drop("flight_rank"), rejects.sort("row_index")
 
 
 def summarise(source: str, n_read: int, kept: int, rejects: pl.DataFrame) -> pl.DataFrame:

@@ -28,11 +28,13 @@ def resample(tracks: pl.DataFrame, dt_s: float = 20.0) -> pl.DataFrame:
     -> the same columns on the Δt grid. Flights shorter than one step are dropped."""
     dt_us = int(round(dt_s * US))
     src = tracks.sort("flight_id", "ts")
-    ids, idx = np.unique(src["flight_id"].to_numpy(), return_inverse=True)
+    # flights are contiguous after the sort: run ids number them without hashing the string ids
+    idx = src["flight_id"].rle_id().to_numpy()
     t = src["ts"].dt.epoch("us").to_numpy()
-    bounds = src.group_by("flight_id", maintain_order=True).agg(pl.col("ts").min(), t1=pl.col("ts").max())
-    first_us = bounds["ts"].dt.epoch("us").to_numpy()
-    last_us = bounds["t1"].dt.epoch("us").to_numpy()
+    starts = np.flatnonzero(np.r_[True, idx[1:] != idx[:-1]]) if len(idx) else np.zeros(0, dtype=np.int64)
+    ids = src["flight_id"].gather(starts)
+    first_us = t[starts]
+    last_us = t[np.r_[starts[1:] - 1, len(t) - 1]] if len(t) else t
     owner, grid_us = _grid(first_us, last_us, dt_us)
 
     t0 = t.min() if len(t) else 0
@@ -44,11 +46,15 @@ def resample(tracks: pl.DataFrame, dt_s: float = 20.0) -> pl.DataFrame:
         ok = ~np.isnan(values)
         if ok.all():
             return np.interp(key_dst, key_src, values)
-        out = np.interp(key_dst, key_src[ok], values[ok]) if ok.any() else np.full(len(key_dst), np.nan)
+        if not ok.any():
+            return np.full(len(key_dst), np.nan)
+        out = np.interp(key_dst, key_src[ok], values[ok])
         # outside a flight's first/last reported value there is nothing to interpolate from: leave a gap
         lo, hi = np.full(len(ids), np.inf), np.full(len(ids), -np.inf)
-        np.minimum.at(lo, idx[ok], key_src[ok])
-        np.maximum.at(hi, idx[ok], key_src[ok])
+        flight, key = idx[ok], key_src[ok]
+        first = np.r_[True, flight[1:] != flight[:-1]]
+        last = np.r_[first[1:], True]
+        lo[flight[first]], hi[flight[last]] = key[first], key[last]
         out[(key_dst < lo[owner]) | (key_dst > hi[owner])] = np.nan
         return out
 
@@ -57,7 +63,7 @@ def resample(tracks: pl.DataFrame, dt_s: float = 20.0) -> pl.DataFrame:
     track = np.radians(col("track_deg"))
     out = pl.DataFrame(
         {
-            "flight_id": ids[owner],
+            "flight_id": ids.gather(owner),
             "ts": pl.Series(grid_us).cast(pl.Datetime("us", "UTC")),
             "lat": interp(col("lat")),
             "lon": (interp(lon_unwrapped) + 180.0) % 360.0 - 180.0,

@@ -1,0 +1,64 @@
+"""Trained trajectory models: every GAIL variant under MMIL and SMIL, and BC, for every seed.
+
+tracks_20s, trajectory_modes, flights, flight_splits, weather -> trajectory_models (catalogue + model files)
+"""
+
+import time
+
+import dagster as dg
+import polars as pl
+from pydantic import Field
+
+from assets.profiles import default_profile
+from warehouse.artifacts import artifact_path
+
+
+class TrajectoryModelsConfig(dg.Config):
+    profile: str = Field(default_factory=default_profile, description="demo (minutes on 2 cores) or paper (thesis budgets)")
+    seeds: list[int] | None = Field(default=None, description="training seeds [demo 0-4, paper 0-9]")
+    bc_epochs: int | None = Field(default=None, description="BC epochs, also the GAILs' warm start [demo 20, paper 200]")
+    gail_iterations: int | None = Field(default=None, description="adversarial iterations per phase model [demo 3, paper 300]")
+    discriminators: list[str] | None = Field(default=None, description="bce_gp and/or wgan_gp [demo bce_gp, paper both]")
+    algorithms: list[str] | None = Field(default=None, description="triple_gail and/or sinfo_gail [both]")
+    dt_s: float = Field(default=20.0, description="time step of the tracks the models learn from [s]")
+
+
+def resolve(config: dg.Config, field_names: tuple[str, ...]) -> dict:
+    """Explicit config values, else the profile's defaults."""
+    from models.trajectory.training import PROFILE_DEFAULTS
+
+    if config.profile not in PROFILE_DEFAULTS:
+        raise ValueError(f"profile must be one of {', '.join(PROFILE_DEFAULTS)}, got '{config.profile}'")
+    defaults = PROFILE_DEFAULTS[config.profile]
+    return {k: getattr(config, k) if getattr(config, k) is not None else defaults[k] for k in field_names}
+
+
+@dg.asset(group_name="trajectory", description="Trained multi-modal GAIL (MMIL, SMIL) and BC models per seed; one model file each.")
+def trajectory_models(context: dg.AssetExecutionContext, config: TrajectoryModelsConfig, tracks_20s: pl.DataFrame,
+                      trajectory_modes: pl.DataFrame, flights: pl.DataFrame, flight_splits: pl.DataFrame, weather: pl.DataFrame):
+    import torch
+
+    from models.trajectory.ppo import DISCRIMINATORS
+    from models.trajectory.report import markdown_table
+    from models.trajectory.training import Budget, catalogue_row, prepare, runs, train_model
+
+    torch.set_num_threads(2)
+    p = resolve(config, ("seeds", "bc_epochs", "gail_iterations", "discriminators", "algorithms"))
+    if bad := [d for d in p["discriminators"] if d not in DISCRIMINATORS]:
+        raise ValueError(f"discriminators: unknown {bad}, expected {DISCRIMINATORS}")
+    setup = prepare(tracks_20s, trajectory_modes, flights, flight_splits, weather, config.dt_s)
+    todo = runs(p["algorithms"], p["discriminators"], p["seeds"])
+    context.log.info(f"training {len(todo)} model bundles ({config.profile} profile: {p})")
+    rows, t0 = [], time.perf_counter()
+    for k, (algorithm, scheme, seed, disc) in enumerate(todo, 1):
+        model, history = train_model(setup, algorithm, scheme, seed, Budget(p["bc_epochs"], p["gail_iterations"]), disc)
+        path = model.save(artifact_path("models/trajectory", f"{model.config['name']}.pt"))
+        rows.append(catalogue_row(model, history, setup, config.profile, str(path)))
+        context.log.info(f"[{k}/{len(todo)}] {model.config['name']}: {model.config['train_seconds']:.1f} s, "
+                         f"final BC loss {rows[-1]['final_bc_loss']:.3f}")
+    catalogue = pl.DataFrame(rows, schema_overrides={"discriminator": pl.String})
+    summary = catalogue.group_by("method", "scheme").agg(pl.len().alias("seeds"), pl.col("train_s").mean().round(1).alias("mean_train_s"))
+    return dg.Output(catalogue, metadata={
+        "bundles": len(rows), "train_s": round(time.perf_counter() - t0, 1), "profile": config.profile,
+        "settings": dg.MetadataValue.json(p), "per_method": dg.MetadataValue.md(markdown_table(summary.sort("method", "scheme"))),
+    })

@@ -1,0 +1,41 @@
+"""MIRL: multi-agent independent Q-learning (thesis §5.4.1), one tabular Q_i per flight-agent.
+
+    Q(s, a) = Σ_i Q_i(s_i, a_i)                                                  (Eq 5.5)
+    Q_i(s_i, a_i) <- (1 - η) Q_i(s_i, a_i) + η [ r_i + γ max_a* Q_i(s'_i, a*) ]   (Eq 5.6, local reward)
+
+All agents that act in a step are updated at once with fancy indexing (no per-flight loop);
+`update_loop` is the same update one flight at a time, kept as the benchmark's baseline.
+"""
+
+import numpy as np
+
+LEARNING_RATE = 0.01  # η, thesis §5.6.2
+GAMMA = 0.99  # γ, thesis §5.6.2
+
+
+class IndependentQ:
+    """Q[flight, state, action] for all flights; action 0 = hold, 1 = add one delay step."""
+
+    def __init__(self, n_flights: int, n_states: int, prior: np.ndarray | None = None, lr: float = LEARNING_RATE, gamma: float = GAMMA):
+        self.q = np.zeros((n_flights, n_states, 2)) if prior is None else prior.copy()
+        self.lr, self.gamma = lr, gamma
+
+    def values(self, state: np.ndarray, agents: np.ndarray, ev) -> np.ndarray:
+        """Q_i(s_i, ·) of the acting agents -> [agents, 2]."""
+        return self.q[agents, state[agents]]
+
+    def update(self, state, action, reward, next_state, agents) -> None:
+        s, s2, a = state[agents], next_state[agents], action[agents]
+        target = reward[agents] + self.gamma * self.q[agents, s2].max(axis=1)  # Eq 5.6
+        self.q[agents, s, a] += self.lr * (target - self.q[agents, s, a])
+
+    def update_loop(self, state, action, reward, next_state, agents) -> None:
+        """The same update as `update`, one flight at a time (benchmark baseline only)."""
+        for i in agents:
+            s, s2, a = state[i], next_state[i], action[i]
+            target = reward[i] + self.gamma * max(self.q[i, s2, 0], self.q[i, s2, 1])
+            self.q[i, s, a] += self.lr * (target - self.q[i, s, a])
+
+    def transferred(self, n_states: int, state_map: np.ndarray) -> "IndependentQ":
+        """Ground-level learner initialised from this (abstract) one: Q_ground(s) = Q_abstract(φ(s))."""
+        return IndependentQ(self.q.shape[0], n_states, prior=self.q[:, state_map], lr=self.lr, gamma=self.gamma)

@@ -1,0 +1,142 @@
+"""The DCB problem as arrays: sector entries of all flights, hourly capacities, hotspots and the reward.
+
+A ground delay d_i (whole minutes) shifts every entry of flight i by d_i. A hotspot is a sector-hour
+whose entry count exceeds its capacity (thesis §5.3). Everything here is vectorised over all entries.
+
+Reward of flight-agent i (Eq 5.2-5.4), λ = 20:
+
+    r_i = C_i - λ · DC_i
+    C_i = -81 · TDC_i  if TDC_i > 0   (TDC_i: minutes flight i spends in sectors during their hotspot hours;
+          C_PLUS        if TDC_i = 0    81 €/min is Europe's average strategic delay cost. The thesis prints
+                                        "81 × TDC"; as congestion must be penalised it enters with a minus.)
+    DC_i = SDC(d_i, class_i) = d_i · cost_class / 81   (delay in average-cost minutes, see DELAY_COST_EUR_PER_MIN)
+"""
+
+from dataclasses import dataclass
+from datetime import timedelta
+
+import numpy as np
+import polars as pl
+
+LAMBDA = 20.0  # Eq 5.2 trade-off between congestion and delay cost (thesis §5.6.2)
+AVG_DELAY_COST_EUR_PER_MIN = 81.0  # Eq 5.3 coefficient: Europe's average strategic delay cost per minute
+C_PLUS = 100.0  # Eq 5.3 reward for a flight in no hotspot ("a large positive constant"; value is ours)
+REGULATED_MIN = 4  # delays under 4 minutes are ignored in avg delay and regulated flights (thesis §5.6.1)
+
+# Strategic (planned-ahead) ground delay cost per minute by aircraft class. Our documented assumption,
+# scaled around the thesis's 81 €/min European average in the proportions of aircraft size; ADS-B
+# demand has no aircraft type, so its flights are "unknown" and cost the average.
+DELAY_COST_EUR_PER_MIN = {"turboprop": 40.0, "regional_jet": 60.0, "narrowbody": 81.0, "widebody": 155.0, "unknown": 81.0}
+_CLASS_PREFIXES = {
+    "widebody": ("A33", "A34", "A35", "A38", "B74", "B76", "B77", "B78", "MD11", "IL96", "A30"),
+    "turboprop": ("AT4", "AT7", "DH8", "SF34", "JS41", "D328", "F50", "B190", "C208", "PC12"),
+    "regional_jet": ("CRJ", "E13", "E14", "E17", "E19", "E29", "E75", "RJ", "F70", "F100", "SU95", "BCS1"),
+    "narrowbody": ("A31", "A32", "A2", "B73", "B37", "B38", "B39", "B75", "BCS3", "MD8", "MD9", "C919"),
+}
+
+
+def aircraft_class(aircraft_type: pl.Expr) -> pl.Expr:
+    """ICAO type designator (e.g. A320, B77W) -> delay cost class; null or unlisted -> unknown."""
+    expr = pl.lit("unknown")
+    for cls, prefixes in reversed(list(_CLASS_PREFIXES.items())):
+        expr = pl.when(pl.any_horizontal(aircraft_type.str.starts_with(p) for p in prefixes).fill_null(False)).then(pl.lit(cls)).otherwise(expr)
+    return expr
+
+
+@dataclass
+class Evaluation:
+    """Hotspot picture for one delay vector."""
+
+    counts: np.ndarray  # [sector*hour] entry count
+    hot: np.ndarray  # [sector*hour] bool, count > capacity
+    entry_key: np.ndarray  # [entry] sector*hours + hour of the (delayed) entry
+    entry_hot: np.ndarray  # [entry] bool, the entry falls in a hotspot
+    hotspots_per_flight: np.ndarray  # [flight] h_i
+    congested_min: np.ndarray  # [flight] TDC_i
+
+    @property
+    def hotspots(self) -> int:
+        return int(self.hot.sum())
+
+
+class DCBProblem:
+    """Flights, their sector entries (minutes since 00:00 UTC of the first day) and hourly capacities."""
+
+    def __init__(self, entries: pl.DataFrame, capacity_per_h: dict[str, int], flights: pl.DataFrame, max_delay_min: int = 60):
+        """entries: flight_id, sector, entry_ts, exit_ts; flights: flight_id, aircraft_class (one row per flight)."""
+        self.flight_ids = flights["flight_id"].to_list()
+        self.sectors = sorted(capacity_per_h)
+        self.max_delay_min = max_delay_min
+        day0 = entries["entry_ts"].min().replace(hour=0, minute=0, second=0, microsecond=0)
+        e = entries.join(flights.select("flight_id", _f=pl.int_range(pl.len())), on="flight_id", how="inner").join(
+            pl.DataFrame({"sector": self.sectors, "_s": np.arange(len(self.sectors))}), on="sector", how="inner"
+        )
+        if e.height != entries.height:
+            raise ValueError(f"{entries.height - e.height} entries name a flight or sector the problem does not know")
+        self.day0 = day0
+        self.entry_flight = e["_f"].to_numpy()
+        self.entry_sector = e["_s"].to_numpy()
+        self.entry_min = ((e["entry_ts"] - day0).dt.total_seconds(fractional=True) / 60).to_numpy()
+        self.entry_dur_min = ((e["exit_ts"] - e["entry_ts"]).dt.total_seconds(fractional=True) / 60).to_numpy()
+        self.n_flights, self.n_sectors = len(self.flight_ids), len(self.sectors)
+        # hours reachable with MaxDelay, plus 3 spare hours for FCFS, whose delays are not capped
+        self.n_hours = int((self.entry_min.max() + max_delay_min) // 60) + 4
+        cap = np.array([capacity_per_h[s] for s in self.sectors], dtype=np.int64)
+        self.capacity = np.repeat(cap, self.n_hours)  # [sector*hour], constant over the day
+        # Entries that can never land in an overloaded sector-hour, whatever the delays in
+        # [0, max_delay], cannot create or sit in a hotspot: learning evaluates only the others
+        # (exact: identical hotspots, h_i and TDC_i; only the counts of never-hot sector-hours differ).
+        k0, k1 = (self.entry_keys(np.full(self.n_flights, d)) for d in (0, max_delay_min))  # an entry reaches k0..k1
+        most = np.bincount(k0, minlength=self.capacity.size) + np.bincount(k1[k1 != k0], minlength=self.capacity.size)
+        self.relevant = np.nonzero((most[k0] > self.capacity[k0]) | (most[k1] > self.capacity[k1]))[0]
+        cost = flights["aircraft_class"].replace_strict(DELAY_COST_EUR_PER_MIN, return_dtype=pl.Float64).to_numpy()
+        self.delay_weight = cost / AVG_DELAY_COST_EUR_PER_MIN  # DC per minute of delay, in average-cost minutes
+
+    def entry_keys(self, delay_min: np.ndarray, idx=slice(None)) -> np.ndarray:
+        hour = ((self.entry_min[idx] + delay_min[self.entry_flight[idx]]) // 60).astype(np.int64)
+        return self.entry_sector[idx] * self.n_hours + hour
+
+    def evaluate(self, delay_min: np.ndarray, all_entries: bool = False) -> Evaluation:
+        """Hotspots for a delay vector; `all_entries` also counts entries that can never be in a hotspot."""
+        idx = slice(None) if all_entries else self.relevant
+        key = self.entry_keys(delay_min, idx)
+        counts = np.bincount(key, minlength=self.capacity.size)
+        hot = counts > self.capacity
+        entry_hot = hot[key]
+        flight = self.entry_flight[idx]
+        h = np.bincount(flight, weights=entry_hot, minlength=self.n_flights)
+        tdc = np.bincount(flight, weights=entry_hot * self.entry_dur_min[idx], minlength=self.n_flights)
+        return Evaluation(counts, hot, key, entry_hot, h.astype(np.int64), tdc)
+
+    def reward(self, delay_min: np.ndarray, ev: Evaluation) -> np.ndarray:
+        """Eq 5.2-5.4 for every flight."""
+        congestion = np.where(ev.congested_min > 0, -AVG_DELAY_COST_EUR_PER_MIN * ev.congested_min, C_PLUS)
+        return congestion - LAMBDA * self.delay_weight * delay_min
+
+
+def capacities(entries: pl.DataFrame, sectors: pl.DataFrame, scale: float) -> dict[str, int]:
+    """Hourly capacity per sector for one evaluation case.
+
+    A sector's base capacity is its `capacity_per_h` from the sector file or, where none is given,
+    its peak hourly entry count in the undelayed demand (no open capacity data exists); the case
+    scales it: capacity = max(1, floor(scale · base)). Scales < 1 create hotspots."""
+    peak = (
+        entries.group_by("sector", hour=pl.col("entry_ts").dt.truncate("1h")).len()
+        .group_by("sector").agg(peak=pl.col("len").max())
+    )
+    base = sectors.select("sector", "capacity_per_h").join(peak, on="sector", how="left").with_columns(
+        base=pl.coalesce("capacity_per_h", "peak", pl.lit(1, pl.UInt32).cast(pl.Int64))
+    )
+    return {s: max(1, int(np.floor(scale * b + 1e-9))) for s, b in base.select("sector", "base").iter_rows()}
+
+
+def hotspot_table(problem: DCBProblem, delay_min: np.ndarray) -> pl.DataFrame:
+    """Demand and capacity per sector-hour (all sector-hours with demand), with the hotspot flag."""
+    ev = problem.evaluate(delay_min, all_entries=True)
+    key = np.nonzero(ev.counts)[0]
+    return pl.DataFrame({
+        "sector": np.asarray(problem.sectors)[key // problem.n_hours],
+        "hour": [problem.day0 + timedelta(hours=int(h)) for h in key % problem.n_hours],
+        "demand": ev.counts[key].astype(np.int64),
+        "capacity": problem.capacity[key],
+    }).with_columns(pl.col("hour").cast(pl.Datetime("us", "UTC")), is_hotspot=pl.col("demand") > pl.col("capacity"))

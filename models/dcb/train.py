@@ -1,0 +1,131 @@
+"""Training loop shared by all learners, the abstraction levels, and the six methods (thesis §5.4-5.6).
+
+Episode: all delays start at 0. Every step, each flight that is in a hotspot (h_i > 0) and below
+MaxDelay chooses ε-greedily to add one more delay step or not; flights in no hotspot keep their
+delay (the thesis's deterministic rule). Demand, hotspots and rewards are recomputed for the new
+delays and every acting agent (or every graph edge) is updated at once. The episode ends when no
+flight can act (no hotspot left) or after MaxDelay / step steps.
+
+Local state s_i = (d_i, h_i) (Eq 5.1), h_i capped at H_CAP. An abstraction level (§5.5.2) maps
+d_i to d_i // state_step (φ_L, Eq 5.11) and lets an action add `action_step` minutes:
+
+    method    learner       abstract level (state_step, action_step) -> ground (1, 1)
+    MIRL      independent   -
+    CMARL     coordinated   -
+    HCMARL    coordinated   (10, 10)    state + temporal abstraction (thesis: I = 10 min)
+    stHMIRL   independent   (10, 10)    state + temporal abstraction
+    sHMIRL    independent   (10, 1)     state abstraction only
+    tHMIRL    independent   (1, 10)     temporal abstraction only
+
+Q-values of the abstract level initialise the ground level (Q_ground(s) = Q_abstract(φ(s))), which
+then trains with exploration starting at ε = 0.7. The solution is the greedy (ε = 0) rollout of the
+final ground-level policy.
+"""
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from models.dcb.cmarl import CoordinatedQ
+from models.dcb.mirl import IndependentQ
+from models.dcb.problem import DCBProblem
+
+EPISODES = 15_000  # per level (thesis §5.6.2)
+EPSILON_START = 0.9  # ε at the first (abstract or only) level
+EPSILON_GROUND_START = 0.7  # ε at the ground level of a hierarchical method
+EPSILON_DECAY = 0.01  # ε decreases by this ...
+EPSILON_EVERY = 120  # ... every this many episodes (of 15,000; scaled to shorter runs)
+H_CAP = 3  # h_i states: 0, 1, 2, >= 3 hotspots
+ABSTRACT_STEP_MIN = 10  # I, the abstract level's interval
+
+
+@dataclass(frozen=True)
+class Level:
+    state_step: int  # minutes of delay per abstract state (φ_L)
+    action_step: int  # minutes added by the "delay" action
+
+    def n_states(self, max_delay: int) -> int:
+        return (max_delay // self.state_step + 1) * (H_CAP + 1)
+
+    def state(self, delay_min: np.ndarray, hotspots: np.ndarray) -> np.ndarray:
+        return (delay_min // self.state_step) * (H_CAP + 1) + np.minimum(hotspots, H_CAP)
+
+    def state_map(self, max_delay: int) -> np.ndarray:
+        """φ: ground state index -> this level's state index."""
+        ground = np.arange(GROUND.n_states(max_delay))
+        return self.state(ground // (H_CAP + 1), ground % (H_CAP + 1))
+
+
+GROUND = Level(1, 1)
+METHODS = {
+    "MIRL": (IndependentQ, None),
+    "CMARL": (CoordinatedQ, None),
+    "HCMARL": (CoordinatedQ, Level(ABSTRACT_STEP_MIN, ABSTRACT_STEP_MIN)),
+    "stHMIRL": (IndependentQ, Level(ABSTRACT_STEP_MIN, ABSTRACT_STEP_MIN)),
+    "sHMIRL": (IndependentQ, Level(ABSTRACT_STEP_MIN, 1)),
+    "tHMIRL": (IndependentQ, Level(1, ABSTRACT_STEP_MIN)),
+}
+
+
+@dataclass
+class TrainResult:
+    delay_min: np.ndarray  # [flight] the greedy solution
+    hotspots_left: int
+    runtime_s: float
+    episodes: int  # over all levels
+    curve: np.ndarray  # [episode, 2]: hotspots left and total delay [min] at the end of each training episode
+
+
+def epsilon(episode: int, start: float, episodes: int) -> float:
+    every = max(1, round(EPSILON_EVERY * episodes / EPISODES))
+    return max(0.0, start - EPSILON_DECAY * (episode // every))
+
+
+def run_episode(problem: DCBProblem, learner, level: Level, eps: float, rng: np.random.Generator, learn: bool = True) -> np.ndarray:
+    """One episode from zero delays; returns the final delays [min]."""
+    delay = np.zeros(problem.n_flights, dtype=np.int64)
+    ev = problem.evaluate(delay)
+    for _ in range(problem.max_delay_min // level.action_step):
+        agents = np.nonzero((ev.hotspots_per_flight > 0) & (delay + level.action_step <= problem.max_delay_min))[0]
+        if agents.size == 0:
+            break
+        state = level.state(delay, ev.hotspots_per_flight)
+        q = learner.values(state, agents, ev)
+        greedy = (q[:, 1] > q[:, 0]).astype(np.int64)  # ties hold: no delay without a reason
+        explore = rng.random(agents.size) < eps
+        action = np.zeros(problem.n_flights, dtype=np.int64)
+        action[agents] = np.where(explore, rng.integers(0, 2, agents.size), greedy)
+        delay = delay + action * level.action_step
+        ev = problem.evaluate(delay)
+        if learn:
+            reward = problem.reward(delay, ev)
+            learner.update(state, action, reward, level.state(delay, ev.hotspots_per_flight), agents)
+    return delay
+
+
+def _make(learner_cls, problem: DCBProblem, n_states: int):
+    if learner_cls is CoordinatedQ:
+        return CoordinatedQ(problem.n_flights, n_states, problem.entry_flight[problem.relevant])
+    return IndependentQ(problem.n_flights, n_states)
+
+
+def train(problem: DCBProblem, method: str, seed: int, episodes: int = EPISODES, log=None) -> TrainResult:
+    """Train `method` on `problem` (`episodes` per level) and return its greedy solution."""
+    learner_cls, abstract = METHODS[method]
+    rng = np.random.default_rng(seed)
+    started = time.perf_counter()
+    curve = []
+    levels = [(abstract, EPSILON_START), (GROUND, EPSILON_GROUND_START)] if abstract else [(GROUND, EPSILON_START)]
+    learner = None
+    for level, eps0 in levels:
+        n_states = level.n_states(problem.max_delay_min)
+        learner = _make(learner_cls, problem, n_states) if learner is None else learner.transferred(n_states, abstract.state_map(problem.max_delay_min))
+        for e in range(episodes):
+            delay = run_episode(problem, learner, level, epsilon(e, eps0, episodes), rng)
+            if e % 50 == 0 or e == episodes - 1:
+                curve.append((problem.evaluate(delay).hotspots, int(delay.sum())))
+                if log and e % max(1, episodes // 5) == 0:
+                    log(f"{method} seed {seed} level {level}: episode {e}/{episodes}, hotspots left {curve[-1][0]}, total delay {curve[-1][1]} min")
+    delay = run_episode(problem, learner, GROUND, 0.0, rng, learn=False)
+    return TrainResult(delay, problem.evaluate(delay).hotspots, time.perf_counter() - started, episodes * len(levels), np.asarray(curve))

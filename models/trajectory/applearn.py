@@ -1,0 +1,371 @@
+"""AppLearn: apprenticeship learning (inverse RL) for aircraft trajectory prediction, thesis chapter 6, Algorithm 7.
+
+One file, CleanRL style: hyperparameters, state features, the max-margin QP, the DQN, the training loop of
+Algorithm 7 and the saved model, in that order. The equations, as in §6.4:
+
+    φ_pos,k(s)   = exp(-β_pos   ‖p - μ_k^pos‖²)      p = (lon, lat); 20 centres along the centroid trajectory (6.2)
+    φ_meteo,k(s) = exp(-β_meteo ‖v - μ_k^meteo‖²)    v = z-scored (T, u, v); 20 K-means centres         (6.3)
+    R_w(s)       = wᵀ φ(s)                                                                              (6.5)
+    μ(π)         = E[Σ_t γᵗ φ(s_t)]          (μ(π_E): mean over the expert flights)                    (6.6, 6.7)
+    w            = argmax_{w,t} t  s.t. wᵀμ(π_E) ≥ wᵀμ(π_j) + t for every policy j so far, ‖w‖₂ ≤ 1
+                   (the max-margin QP of Abbeel & Ng 2004; a second-order cone program, solved by CLARABEL)
+    DQN          : L(θ) = E[(r + γ (1 - done) max_a' Q_θ⁻(s', a') - Q_θ(s, a))²],   r = R_w(s') + r_aug(s')
+
+r_aug is the reward augmentation of §6.5.2: a large bonus on reaching the destination, a large penalty on
+leaving the box or hitting the step limit. The environment is models.trajectory.heading_env (Eq 6.4).
+
+One deviation from the thesis, on by default (`goal_offset_input`): the Q-network also sees the offset to
+the goal, scaled by the box size. φ alone locates the aircraft only to within one RBF width (~50 km), too
+coarse to aim at the 5 km goal disc; the reward and the IRL step still use φ only.
+"""
+
+import io
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+
+import numpy as np
+import polars as pl
+import torch
+
+from models.trajectory.heading_env import (
+    RUNNING,
+    SUCCESS,
+    WEATHER_COLUMNS,
+    AltitudeNet,
+    HeadingEnv,
+    HeadingGeometry,
+    ModelFileError,
+    StartStates,
+    expert_observations,
+    fit_altitude_net,
+    fit_geometry,
+    resample_flights,
+)
+
+
+# ------------------------------------------------------------------------------------------ hyperparameters
+@dataclass(frozen=True)
+class AppLearnParams:
+    """Defaults = the thesis's budgets (§6.4.1, §6.5.2); PROFILES["demo"] shrinks the budgets only."""
+
+    n_pos_centres: int = 20  # L_pos
+    n_meteo_centres: int = 20  # L_meteo
+    n_headings: int = 4  # L_a, the discrete actions
+    goal_radius_km: float = 5.0  # success: within this distance of the destination
+    max_steps: int = 2000  # failure: step limit
+    altitude_hidden: int = 50  # NN_altitude: one hidden layer of 50 ReLU
+    altitude_epochs: int = 300
+    episodes: int = 15_000
+    n_envs: int = 64  # episodes run side by side in the batched environment
+    hidden: int = 150  # DQN: one hidden layer of 150 ReLU
+    gamma: float = 0.99  # discount of the DQN
+    # discount of the feature expectations μ (Eq 6.6-6.7). Episodes end, so γ = 1 is defined; with γ < 1 the
+    # first RBF centres of the route dominate μ(π_E) and the learned w pays the agent to dawdle near them.
+    feature_gamma: float = 1.0
+    lr: float = 1e-3  # Adam; decays linearly to lr_final during the exploitation phase
+    lr_final: float = 1e-5
+    epsilon_start: float = 0.9  # ε-greedy, lowered every 100 episodes ...
+    epsilon_every_episodes: int = 100
+    exploration_fraction: float = 0.75  # ... until 0 at 75 % of the episodes (episode 11,200 of 15,000)
+    batch_size: int = 5000  # DQN mini-batch
+    buffer_size: int = 200_000  # replay memory
+    transitions_per_update: int = 50  # one DQN update every 50 environment steps
+    target_every_episodes: int = 5  # hard target-network update
+    irl_every_episodes: int = 100  # a new w from the QP
+    success_reward: float = 100.0  # reward augmentation
+    failure_reward: float = -100.0
+    goal_offset_input: bool = True  # see the module docstring
+    # "pick a random initial state from T^E": this share of the episodes starts at a random expert point, the
+    # rest at an expert's first point. Mid-route starts reach the goal early in training, so the success
+    # bonus is seen at all; only the episodes from first points enter μ(π), comparable with μ(π_E).
+    start_anywhere_fraction: float = 0.5
+
+
+# goal offset (in steps) seen by the DQN through tanh(offset / scale): fine near the goal, coarse far away
+GOAL_OFFSET_SCALES_STEPS = (10.0, 100.0)
+
+PROFILES = {
+    "paper": AppLearnParams(),
+    # minutes on 2 cores for all partitions and seeds: fewer, wider batches of episodes, smaller updates
+    "demo": AppLearnParams(
+        altitude_epochs=150, episodes=1536, n_envs=256, batch_size=256, buffer_size=100_000,
+        transitions_per_update=128, epsilon_every_episodes=64, irl_every_episodes=128, target_every_episodes=16,
+    ),
+}
+
+
+# ------------------------------------------------------------------------------------ features φ(s), Eq 6.2-6.3
+@dataclass
+class RBFFeatures:
+    pos_centres: np.ndarray  # (L_pos, 2): lon·cos(lat0), lat of the centroid trajectory at equal time steps
+    beta_pos: float
+    lon_scale: float  # cos(lat0): makes a degree of longitude as long as a degree of latitude
+    meteo_centres: np.ndarray  # (L_meteo, 3) in z-scored weather units
+    meteo_mean: np.ndarray  # (3,) mean and std of T [K], u, v [m/s] over the expert points
+    meteo_std: np.ndarray
+    beta_meteo: float
+
+    @property
+    def size(self) -> int:
+        return len(self.pos_centres) + len(self.meteo_centres) + 1
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        """φ(s) for observations (N, 7) -> (N, L_pos + L_meteo + 1); a point without weather gets φ_meteo = 0.
+
+        The last feature is a constant 1: its feature expectation is the episode length, so the QP can learn
+        a cost per step (experts do not dawdle) instead of paying the agent for every step near the route.
+        """
+        p = np.stack([obs[:, 0] * self.lon_scale, obs[:, 1]], axis=1)
+        v = (obs[:, 4:7] - self.meteo_mean) / self.meteo_std
+        phi_pos = np.exp(-self.beta_pos * ((p[:, None, :] - self.pos_centres) ** 2).sum(-1))
+        phi_meteo = np.exp(-self.beta_meteo * ((v[:, None, :] - self.meteo_centres) ** 2).sum(-1))
+        bias = np.ones((len(obs), 1))
+        return np.nan_to_num(np.concatenate([phi_pos, phi_meteo, bias], axis=1)).astype(np.float32)
+
+
+def fit_features(tracks: pl.DataFrame, n_pos: int, n_meteo: int, seed: int) -> RBFFeatures:
+    """Centres and widths from the expert flights: β = 1 / (2 d²), d = median spacing of neighbouring centres."""
+    from sklearn.cluster import KMeans
+
+    _, lon_lat = resample_flights(tracks, n_pos)
+    lon_scale = float(np.cos(np.radians(tracks["lat"].mean())))
+    centroid = lon_lat.mean(axis=0) * np.array([lon_scale, 1.0])  # equidistant in time along the centroid
+    spacing = np.median(np.linalg.norm(np.diff(centroid, axis=0), axis=1))
+    weather = tracks.select(WEATHER_COLUMNS).to_numpy()
+    mean, std = weather.mean(axis=0), weather.std(axis=0).clip(1e-6)
+    z = (weather - mean) / std
+    sample = z[np.random.default_rng(seed).permutation(len(z))[:5000]]
+    meteo = KMeans(n_meteo, n_init=2, random_state=seed).fit(sample).cluster_centers_
+    gaps = np.linalg.norm(meteo[:, None] - meteo[None], axis=-1) + np.diag(np.full(n_meteo, np.inf))
+    return RBFFeatures(
+        centroid, float(1 / (2 * max(spacing, 1e-3) ** 2)), lon_scale,
+        meteo, mean, std, float(1 / (2 * max(np.median(gaps.min(axis=1)), 1e-3) ** 2)),
+    )
+
+
+def expert_feature_expectations(tracks: pl.DataFrame, features: RBFFeatures, gamma: float) -> np.ndarray:
+    """μ(π_E) = 1/M Σ_i Σ_t γᵗ φ(s_t^i) over the M expert flights (Eq 6.6)."""
+    tracks = tracks.sort("flight_id", "ts")
+    t = tracks.select(pl.int_range(pl.len()).over("flight_id")).to_series().to_numpy()
+    discounted = features(expert_observations(tracks)) * gamma ** t[:, None]
+    return discounted.sum(axis=0) / tracks["flight_id"].n_unique()
+
+
+# ---------------------------------------------------------------------------------------- the IRL step (QP)
+def max_margin_weights(mu_expert: np.ndarray, mu_policies: np.ndarray) -> tuple[np.ndarray, float]:
+    """w with ‖w‖₂ ≤ 1 maximising the margin t by which the expert beats every policy so far (Abbeel & Ng)."""
+    import cvxpy as cp
+
+    w, t = cp.Variable(len(mu_expert)), cp.Variable()
+    constraints = [cp.norm(w, 2) <= 1, np.atleast_2d(mu_policies) @ w + t <= mu_expert @ w]
+    cp.Problem(cp.Maximize(t), constraints).solve(solver=cp.CLARABEL)
+    if w.value is None:
+        raise RuntimeError("the max-margin QP found no solution")
+    return np.asarray(w.value, dtype=np.float64), float(t.value)
+
+
+# --------------------------------------------------------------------------------------------------- the DQN
+class QNetwork(torch.nn.Module):
+    def __init__(self, n_inputs: int, n_actions: int, hidden: int):
+        super().__init__()
+        self.net = torch.nn.Sequential(torch.nn.Linear(n_inputs, hidden), torch.nn.ReLU(), torch.nn.Linear(hidden, n_actions))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.net(x)
+
+
+@dataclass
+class AppLearnModel:
+    """A trained AppLearn policy with everything needed to roll it out: geometry, NN_altitude, φ, DQN, w."""
+
+    params: AppLearnParams
+    geometry: HeadingGeometry
+    altitude: AltitudeNet
+    features: RBFFeatures
+    q_net: QNetwork | None  # None only while being built
+    w: np.ndarray
+
+    def q_input(self, obs: np.ndarray) -> np.ndarray:
+        """The DQN's input: φ(s), and (goal_offset_input) the offset to the goal, in steps, squashed at two scales."""
+        phi = self.features(obs)
+        if not self.params.goal_offset_input:
+            return phi
+        g = self.geometry
+        steps = np.stack([(g.goal_lon - obs[:, 0]) / g.step_lon_deg, (g.goal_lat - obs[:, 1]) / g.step_lat_deg], axis=1)
+        offset = np.concatenate([np.tanh(steps / scale) for scale in GOAL_OFFSET_SCALES_STEPS], axis=1)
+        return np.concatenate([phi, offset.astype(np.float32)], axis=1)
+
+    @property
+    def n_inputs(self) -> int:
+        return self.features.size + 2 * len(GOAL_OFFSET_SCALES_STEPS) * self.params.goal_offset_input
+
+    @torch.no_grad()
+    def policy(self, obs: np.ndarray) -> np.ndarray:
+        """Greedy heading index for each observation."""
+        return self.q_net(torch.from_numpy(self.q_input(obs))).argmax(dim=1).numpy()
+
+    def env(self, weather: pl.DataFrame, weather_alignment: str = "time_of_day") -> HeadingEnv:
+        return HeadingEnv(self.geometry, self.altitude, weather, weather_alignment)
+
+    def to_bytes(self) -> bytes:
+        buffer = io.BytesIO()
+        torch.save({
+            "kind": "applearn", "params": asdict(self.params), "geometry": self.geometry.to_dict(),
+            "altitude": self.altitude.state_dict(), "q_net": self.q_net.state_dict(), "w": torch.from_numpy(self.w),
+            "features": {k: torch.as_tensor(v) for k, v in asdict(self.features).items()},
+        }, buffer)
+        return buffer.getvalue()
+
+    @classmethod
+    def load(cls, path: str | Path) -> "AppLearnModel":
+        state = _load_state(Path(path), "applearn")
+        params = AppLearnParams(**state["params"])
+        geometry = HeadingGeometry(**state["geometry"])
+        altitude = AltitudeNet(params.altitude_hidden)
+        altitude.load_state_dict(state["altitude"])
+        features = RBFFeatures(**{k: v.item() if v.ndim == 0 else v.numpy() for k, v in state["features"].items()})
+        model = cls(params, geometry, altitude.eval(), features, None, state["w"].numpy())
+        model.q_net = QNetwork(model.n_inputs, len(geometry.headings_rad), params.hidden)
+        model.q_net.load_state_dict(state["q_net"])
+        model.q_net.eval()
+        return model
+
+
+def _load_state(path: Path, kind: str) -> dict:
+    """A saved model's dictionary, or a one-line ModelFileError naming the file."""
+    if not path.is_file():
+        raise ModelFileError(f"{path}: no such model file")
+    try:
+        state = torch.load(path, weights_only=True)
+    except Exception as e:  # torch raises many kinds for a corrupt or foreign file
+        raise ModelFileError(f"{path}: not a readable trafficlearn model file ({type(e).__name__})") from None
+    if not isinstance(state, dict) or state.get("kind") != kind:
+        found = state.get("kind") if isinstance(state, dict) else type(state).__name__
+        raise ModelFileError(f"{path}: expected a {kind} model file, found {found!r}")
+    return state
+
+
+# ---------------------------------------------------------------------------------- training (Algorithm 7)
+def train_applearn(
+    tracks: pl.DataFrame, weather: pl.DataFrame, params: AppLearnParams, seed: int,
+    weather_alignment: str = "time_of_day", log=None,
+) -> tuple[AppLearnModel, pl.DataFrame]:
+    """Train on the expert flights in `tracks` (tracks_20s rows); returns the model and one row per IRL step."""
+    torch.manual_seed(seed)
+    rng = np.random.default_rng(seed)
+    # Alg 7, line 1: NN_altitude; and the MDP, features and expert feature expectations from the experts
+    geometry = fit_geometry(tracks, params.n_headings, params.goal_radius_km, params.max_steps)
+    altitude = fit_altitude_net(tracks, params.altitude_hidden, params.altitude_epochs, seed=seed)
+    features = fit_features(tracks, params.n_pos_centres, params.n_meteo_centres, seed)
+    mu_expert = expert_feature_expectations(tracks, features, params.feature_gamma)
+    w0 = rng.normal(size=features.size)  # Alg 7, line 2: random initial reward weights
+    n_actions = len(geometry.headings_rad)
+    model = AppLearnModel(params, geometry, altitude, features, None, w0 / np.linalg.norm(w0))
+    model.q_net = q_net = QNetwork(model.n_inputs, n_actions, params.hidden)
+    target_net = QNetwork(model.n_inputs, n_actions, params.hidden)
+    target_net.load_state_dict(q_net.state_dict())
+    optimiser = torch.optim.Adam(q_net.parameters(), lr=params.lr)
+    env = model.env(weather, weather_alignment)
+    firsts, anywhere = StartStates.first_points(tracks), StartStates.all_points(tracks)
+
+    def pick_starts(n: int) -> tuple[StartStates, np.ndarray]:
+        """n start states and whether each is an expert's first point (those episodes count for μ(π))."""
+        mid = rng.random(n) < params.start_anywhere_fraction
+        chosen = StartStates.concat([firsts.take(rng.integers(0, len(firsts), n)), anywhere.take(rng.integers(0, len(anywhere), n))])
+        return chosen.take(np.where(mid, n + np.arange(n), np.arange(n))), ~mid
+
+    # replay memory: DQN input of s and s', action, status of s' (the reward is recomputed with the current w)
+    n_in = model.n_inputs
+    memory_x = np.zeros((params.buffer_size, n_in), np.float32)
+    memory_x2 = np.zeros((params.buffer_size, n_in), np.float32)
+    memory_a = np.zeros(params.buffer_size, np.int64)
+    memory_status = np.zeros(params.buffer_size, np.int8)
+    stored = 0
+
+    first_starts, from_origin = pick_starts(params.n_envs)
+    obs = env.reset(first_starts)
+    x = model.q_input(obs)
+    mu_running = x[:, : features.size].astype(np.float64)  # Σ_t γᵗ φ(s_t) of each running episode (Eq 6.7)
+    t_running = np.zeros(params.n_envs)
+    finished_mu, finished_success, losses, mu_policies, history = [], [], [], [], []
+    episodes = updates = 0
+    next_target, next_irl = params.target_every_episodes, params.irl_every_episodes
+    explore_episodes = params.exploration_fraction * params.episodes
+    while episodes < params.episodes:
+        # ε-greedy, ε lowered every epsilon_every_episodes episodes from 0.9 to 0
+        done_blocks = (episodes // params.epsilon_every_episodes) * params.epsilon_every_episodes
+        epsilon = params.epsilon_start * max(0.0, 1.0 - done_blocks / explore_episodes)
+        with torch.no_grad():
+            greedy = q_net(torch.from_numpy(x)).argmax(dim=1).numpy()
+        actions = np.where(rng.random(params.n_envs) < epsilon, rng.integers(0, n_actions, params.n_envs), greedy)
+        obs, status = env.step(actions)  # Eq 6.4 + NN_altitude + weather at the new 4D point
+        x2 = model.q_input(obs)
+
+        rows = (stored + np.arange(params.n_envs)) % params.buffer_size
+        memory_x[rows], memory_x2[rows], memory_a[rows], memory_status[rows] = x, x2, actions, status
+        stored += params.n_envs
+        t_running += 1
+        mu_running += params.feature_gamma ** t_running[:, None] * x2[:, : features.size]
+
+        ended = np.flatnonzero(status != RUNNING)
+        if len(ended):
+            finished_mu.extend(mu_running[ended[from_origin[ended]]])
+            finished_success.extend(status[ended] == SUCCESS)
+            episodes += len(ended)
+            new_starts, from_origin[ended] = pick_starts(len(ended))
+            obs = env.restart(ended, new_starts)
+            x2[ended] = model.q_input(obs[ended])
+            mu_running[ended] = x2[ended, : features.size]
+            t_running[ended] = 0
+        x = x2
+
+        # DQN updates: one per transitions_per_update environment steps
+        if episodes > explore_episodes:  # exploitation: the learning rate decays linearly to lr_final
+            progress = (episodes - explore_episodes) / max(params.episodes - explore_episodes, 1)
+            optimiser.param_groups[0]["lr"] = params.lr + min(progress, 1.0) * (params.lr_final - params.lr)
+        while updates < stored // params.transitions_per_update:
+            losses.append(_dqn_update(model, target_net, optimiser, rng, memory_x, memory_x2, memory_a, memory_status, min(stored, params.buffer_size)))
+            updates += 1
+        if episodes >= next_target:
+            target_net.load_state_dict(q_net.state_dict())
+            next_target = (episodes // params.target_every_episodes + 1) * params.target_every_episodes
+        if episodes >= next_irl and finished_mu:  # the IRL step: μ of the recent policy joins the QP, a new w comes out
+            mu_policies.append(np.mean(finished_mu, axis=0))
+            model.w, margin = max_margin_weights(mu_expert, np.stack(mu_policies))
+            history.append({
+                "episode": episodes, "epsilon": epsilon, "margin": margin, "success_rate": float(np.mean(finished_success)),
+                "loss": float(np.mean(losses)) if losses else float("nan"),
+                "reward_expert": float(model.w @ mu_expert), "reward_policy": float(model.w @ mu_policies[-1]),
+            })
+            if log:
+                log(f"episode {episodes}/{params.episodes}: ε={epsilon:.2f} success={history[-1]['success_rate']:.2f} "
+                    f"margin={margin:.3f} loss={history[-1]['loss']:.3g}")
+            finished_mu, finished_success, losses = [], [], []
+            next_irl = (episodes // params.irl_every_episodes + 1) * params.irl_every_episodes
+    return model, pl.DataFrame(history)
+
+
+def _dqn_update(model, target_net, optimiser, rng, memory_x, memory_x2, memory_a, memory_status, size) -> float:
+    """One Adam step on the TD error of a random mini-batch; r = wᵀφ(s') + reward augmentation."""
+    p = model.params
+    idx = rng.integers(0, size, min(p.batch_size, size))
+    x, x2 = torch.from_numpy(memory_x[idx]), torch.from_numpy(memory_x2[idx])
+    status = memory_status[idx]
+    reward = memory_x2[idx, : model.features.size] @ model.w.astype(np.float32)
+    reward = reward + np.where(status == SUCCESS, p.success_reward, np.where(status != RUNNING, p.failure_reward, 0.0))
+    with torch.no_grad():
+        running = torch.from_numpy(status == RUNNING).float()
+        target = torch.from_numpy(reward.astype(np.float32)) + p.gamma * running * target_net(x2).max(dim=1).values
+    q = model.q_net(x).gather(1, torch.from_numpy(memory_a[idx])[:, None]).squeeze(1)
+    loss = torch.nn.functional.mse_loss(q, target)
+    optimiser.zero_grad()
+    loss.backward()
+    optimiser.step()
+    return loss.item()
+
+
+def demo_or_paper(profile: str, **overrides) -> AppLearnParams:
+    """The profile's parameters with explicit overrides (None = keep the profile's value)."""
+    if profile not in PROFILES:
+        raise ValueError(f"profile {profile!r}: expected one of {', '.join(PROFILES)}")
+    return replace(PROFILES[profile], **{k: v for k, v in overrides.items() if v is not None})

@@ -1,0 +1,233 @@
+"""col-MARL and its i-MARL ablation: one DDQN per route agent (route x vehicle class), Algorithm 6.
+
+Single file, CleanRL style: hyperparameters first, then the Q-networks, the rollout of one episode
+(run in worker processes, one libsumo each) and the training loop. Every vehicle of a route agent is
+an independent copy of it; the experience of all of them fills that agent's replay buffer.
+
+All route agents have the same architecture (state -> 128 tanh -> 5 accelerations), so their weights
+are stacked on a leading agent axis: agent k only ever sees its own parameters and its own loss (Adam
+is element-wise, so one optimiser over the stack equals one optimiser per agent), and a batch of all
+agents trains in one `bmm`.
+
+Variant "col" is col-MARL (state Eq 4.2, reward Eq 4.3-4.7); "ind" is i-MARL (no collision and density
+terms, reward Eq 3.2-3.3). The environment is models.urban.env.UrbanParallelEnv.
+"""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+from torch import nn
+
+from models.urban.env import STATE_DIM, UrbanParallelEnv, route_agent
+from models.urban.sim import ScenarioFiles
+
+# --- hyperparameters (§4.3.1) ------------------------------------------------------------------
+HIDDEN = 128  # one tanh hidden layer
+N_ACTIONS = 5  # Table 4.1: Decel_L, Decel_M, 0, Accel_M, Accel_L
+LEARNING_RATE = 1e-3  # Adam
+GAMMA = 0.99
+BATCH_SIZE = 2500  # per route agent and gradient step
+BUFFER_SIZE = 25_000  # per route agent
+TARGET_EVERY_EPISODES = 5  # hard update of the target networks
+EPSILON_START = 0.9  # decays linearly to 0 ...
+EXPLORATION_FRACTION = 0.8  # ... over this share of the episodes; the rest is pure exploitation
+GRADIENT_STEPS_PER_EPISODE = 10  # the thesis trains "at the end of each episode"; we take 10 steps there
+
+
+class RouteAgentsQ(nn.Module):
+    """Q(s, ·) of every route agent: weights stacked as [agent, ...]."""
+
+    def __init__(self, n_agents: int, state_dim: int, generator: torch.Generator):
+        super().__init__()
+
+        def init(*shape, fan_in):  # PyTorch's default Linear initialisation, per agent
+            bound = 1.0 / np.sqrt(fan_in)
+            return nn.Parameter((torch.rand(*shape, generator=generator) * 2 - 1) * bound)
+
+        self.w1, self.b1 = init(n_agents, state_dim, HIDDEN, fan_in=state_dim), init(n_agents, HIDDEN, fan_in=state_dim)
+        self.w2, self.b2 = init(n_agents, HIDDEN, N_ACTIONS, fan_in=HIDDEN), init(n_agents, N_ACTIONS, fan_in=HIDDEN)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """x [agent, batch, state] -> Q [agent, batch, action]."""
+        h = torch.tanh(torch.baddbmm(self.b1[:, None], x, self.w1))
+        return torch.baddbmm(self.b2[:, None], h, self.w2)
+
+
+def q_values(params: dict[str, np.ndarray], states: np.ndarray, agent_idx: np.ndarray) -> np.ndarray:
+    """Q of each vehicle under its own route agent, numpy (rollout workers need no torch)."""
+    h = np.tanh(np.einsum("nd,ndh->nh", states, params["w1"][agent_idx]) + params["b1"][agent_idx])
+    return np.einsum("nh,nha->na", h, params["w2"][agent_idx]) + params["b2"][agent_idx]
+
+
+# --- one episode (runs in a worker process) -------------------------------------------------------
+
+
+@dataclass
+class EpisodeJob:
+    files: ScenarioFiles
+    variant: str
+    agents: list  # route agent names, index = position in the weight stack
+    params: dict  # numpy weights of RouteAgentsQ
+    epsilon: float
+    seed: int  # exploration and SUMO seed of this episode
+    n_vehicles: int
+    record: bool = False
+    leader_guard: bool = False  # see models.urban.env
+
+
+@dataclass
+class EpisodeResult:
+    transitions: dict  # agent_idx, state, action, reward, next_state, done: arrays
+    agent_return: np.ndarray  # mean return of the vehicles of each route agent (nan: none drove)
+    metrics: dict
+    frames: list = field(default_factory=list)  # 1 s snapshots if recorded
+    collided: set = field(default_factory=set)
+    vehicle_substeps: int = 0  # vehicles x simulation steps, for throughput figures
+
+
+def run_episode(job: EpisodeJob) -> EpisodeResult:
+    """Roll out one episode with ε-greedy route agents; returns every vehicle's transitions."""
+    rng = np.random.default_rng(job.seed)
+    env = UrbanParallelEnv(job.files, job.variant, sumo_seed=job.seed, record=job.record, leader_guard=job.leader_guard)
+    index = {a: i for i, a in enumerate(job.agents)}
+    buf = {k: [] for k in ("agent_idx", "state", "action", "reward", "next_state", "done")}
+    returns = np.zeros(len(job.agents))
+    try:
+        obs, _ = env.reset(seed=job.seed)
+        while env.agents:
+            ids = list(env.agents)
+            states = np.stack([obs[v] for v in ids])
+            agent_idx = np.array([index[route_agent(v)] for v in ids])
+            greedy = q_values(job.params, states, agent_idx).argmax(axis=1)
+            explore = rng.random(len(ids)) < job.epsilon
+            action = np.where(explore, rng.integers(0, N_ACTIONS, len(ids)), greedy)
+            obs, rewards, terminated, truncated, _ = env.step(dict(zip(ids, action.tolist())))
+            r = np.array([rewards.get(v, 0.0) for v in ids])
+            buf["agent_idx"].append(agent_idx)
+            buf["state"].append(states)
+            buf["action"].append(action)
+            buf["reward"].append(r)
+            buf["next_state"].append(np.stack([obs[v] for v in ids]))
+            buf["done"].append(np.array([terminated.get(v, False) for v in ids], float))
+            np.add.at(returns, agent_idx, r)
+        counts = np.bincount([index[route_agent(v)] for v in env.sim.tally.depart], minlength=len(job.agents))
+        metrics = env.sim.metrics(job.n_vehicles)
+        frames, collided, substeps = env.frames, set(env.sim.tally.collided), env.sim.tally.vehicle_substeps
+    finally:
+        env.close()
+    transitions = {k: np.concatenate(v) if v else np.zeros(0) for k, v in buf.items()}
+    with np.errstate(invalid="ignore", divide="ignore"):
+        agent_return = np.where(counts > 0, returns / counts, np.nan)
+    return EpisodeResult(transitions, agent_return, metrics, frames, collided, substeps)
+
+
+# --- training ---------------------------------------------------------------------------------------
+
+
+class ReplayBuffers:
+    """One ring buffer per route agent, stored as [agent, slot, ...] arrays."""
+
+    def __init__(self, n_agents: int, state_dim: int):
+        self.state = np.zeros((n_agents, BUFFER_SIZE, state_dim), np.float32)
+        self.next_state = np.zeros_like(self.state)
+        self.action = np.zeros((n_agents, BUFFER_SIZE), np.int64)
+        self.reward = np.zeros((n_agents, BUFFER_SIZE), np.float32)
+        self.done = np.zeros((n_agents, BUFFER_SIZE), np.float32)
+        self.size = np.zeros(n_agents, np.int64)
+        self.head = np.zeros(n_agents, np.int64)
+
+    def add(self, t: dict) -> None:
+        for k in np.unique(t["agent_idx"]):
+            sel = t["agent_idx"] == k
+            n = int(sel.sum())
+            slots = (self.head[k] + np.arange(n)) % BUFFER_SIZE
+            self.state[k, slots], self.next_state[k, slots] = t["state"][sel], t["next_state"][sel]
+            self.action[k, slots], self.reward[k, slots], self.done[k, slots] = t["action"][sel], t["reward"][sel], t["done"][sel]
+            self.head[k] = (self.head[k] + n) % BUFFER_SIZE
+            self.size[k] = min(self.size[k] + n, BUFFER_SIZE)
+
+    def sample(self, rng: np.random.Generator, batch: int):
+        """`batch` transitions of every agent (drawn with replacement); agents with an empty buffer are masked."""
+        slots = (rng.random((len(self.size), batch)) * np.maximum(self.size, 1)[:, None]).astype(np.int64)
+        rows = np.arange(len(self.size))[:, None]
+        tensors = [torch.from_numpy(a[rows, slots]) for a in (self.state, self.action, self.reward, self.next_state, self.done)]
+        return (*tensors, torch.from_numpy(self.size > 0))
+
+
+def dqn_update(q: RouteAgentsQ, target: RouteAgentsQ, optimiser, batch) -> np.ndarray:
+    """One double-DQN step for all route agents: y = r + γ (1 - done) Q_target(s', argmax_a Q(s', a))."""
+    state, action, reward, next_state, done, has_data = batch
+    with torch.no_grad():
+        best_next = q(next_state).argmax(dim=2, keepdim=True)
+        y = reward + GAMMA * (1.0 - done) * target(next_state).gather(2, best_next).squeeze(2)
+    q_taken = q(state).gather(2, action[..., None]).squeeze(2)
+    per_agent = ((q_taken - y) ** 2).mean(dim=1) * has_data  # sum of per-agent MSE: agents stay independent
+    optimiser.zero_grad()
+    per_agent.sum().backward()
+    optimiser.step()
+    return np.where(has_data.numpy(), per_agent.detach().numpy(), np.nan)  # loss of each route agent
+
+
+def numpy_params(q: RouteAgentsQ) -> dict[str, np.ndarray]:
+    return {k: v.detach().numpy().copy() for k, v in q.state_dict().items()}
+
+
+def epsilon_at(episode: int, episodes: int) -> float:
+    explore = max(int(EXPLORATION_FRACTION * episodes), 1)
+    return max(EPSILON_START * (1.0 - episode / explore), 0.0)
+
+
+def train(
+    copies: list[tuple[ScenarioFiles, int]],
+    agents: list[str],
+    variant: str,
+    episodes: int,
+    seed: int,
+    run_parallel,
+    log=print,
+    leader_guard: bool = False,
+) -> tuple[dict, list[dict]]:
+    """Train the route agents on the training copies (episode k uses copy k mod len(copies)).
+
+    `run_parallel(jobs)` runs EpisodeJobs (in worker processes) and returns their results in order; a
+    round holds as many episodes as it has workers, all with the same weights. The same seed gives the
+    same weights and log. Returns (numpy weights, one log row per route agent and episode)."""
+    torch.manual_seed(seed)
+    gen = torch.Generator().manual_seed(seed)
+    rng = np.random.default_rng(seed)
+    dim = STATE_DIM[variant]
+    q, target = RouteAgentsQ(len(agents), dim, gen), RouteAgentsQ(len(agents), dim, gen)
+    target.load_state_dict(q.state_dict())
+    optimiser = torch.optim.Adam(q.parameters(), lr=LEARNING_RATE)
+    buffers = ReplayBuffers(len(agents), dim)
+    rows: list[dict] = []
+    workers = getattr(run_parallel, "workers", 1)
+    episode = 0
+    while episode < episodes:
+        n = min(workers, episodes - episode)
+        params = numpy_params(q)
+        jobs = [
+            EpisodeJob(copies[(episode + i) % len(copies)][0], variant, agents, params, epsilon_at(episode + i, episodes),
+                       seed * 100_003 + episode + i, copies[(episode + i) % len(copies)][1], leader_guard=leader_guard)
+            for i in range(n)
+        ]
+        for job, result in zip(jobs, run_parallel(jobs)):
+            if len(result.transitions["agent_idx"]):
+                buffers.add(result.transitions)
+            batch = min(BATCH_SIZE, int(buffers.size.max()))  # early on, no bigger than the fullest buffer
+            losses = np.mean([dqn_update(q, target, optimiser, buffers.sample(rng, batch)) for _ in range(GRADIENT_STEPS_PER_EPISODE)], axis=0)
+            if (episode + 1) % TARGET_EVERY_EPISODES == 0:
+                target.load_state_dict(q.state_dict())
+            rows += [
+                {"agent": a, "episode": episode, "return": float(result.agent_return[k]), "epsilon": job.epsilon,
+                 "loss": float(losses[k])}
+                for k, a in enumerate(agents)
+            ]
+            m = result.metrics
+            if episode % max(episodes // 10, 1) == 0 or episode == episodes - 1:
+                log(f"{variant} episode {episode + 1}/{episodes}: ε={job.epsilon:.2f} collisions={m['collisions']} "
+                    f"teleports={m['teleports']} arrived={m['arrived']}/{job.n_vehicles} travel={m['avg_travel_time_s']:.1f}s "
+                    f"loss={np.nanmean(losses):.3f}")
+            episode += 1
+    return numpy_params(q), rows

@@ -1,0 +1,199 @@
+"""Multi-agent environment over libsumo, PettingZoo parallel API (thesis §4.2).
+
+PettingZoo agents are the vehicles on the road still approaching a junction; each belongs to a *route
+agent* (route x vehicle class, `infos[vehicle]["route_agent"]`) whose policy drives all its vehicles.
+Every `ACTION_S` = 1 s each vehicle picks one of 5 accelerations (Table 4.1), held while SUMO runs
+sub-steps of 0.2 s so that crossing collisions are detected.
+
+State (Eq 4.2), scaled to about [-1, 1] for the networks:
+    s = [vel / vel_max, pos / 200 m, fveh_dist / 200 m (-1: none), fveh_vel / vel_max (-1: none), col_term, density]
+pos is the distance still to go to the junction ahead (0 inside a junction). col_term and density are
+computed centrally per junction, for all vehicles at once: inter_time = pos / vel; col_term = 1 when a
+vehicle on another road approaching the same junction has |Δinter_time| < 1.5 s; density = vehicles
+approaching that junction / its incoming lanes. Vehicles on the same road are left out of col_term: they
+cannot cross each other's path, the front-vehicle terms cover them.
+
+Variants: "col" (col-MARL, reward Eq 4.3-4.7) and "ind" (i-MARL ablation: the first 4 state terms only,
+reward Eq 3.2-3.3 without a collision prediction, C = 1).
+
+Terminal rewards: -L on a collision or a teleport; +L when the vehicle has crossed its last junction.
+From there it drives its last road under a fixed rule (max acceleration up to vel_max, §4.3.1) with
+SUMO's safety checks back on, and it no longer is a PettingZoo agent.
+
+leader_guard=True (not in the thesis, off by default) lets SUMO cap each vehicle's speed at the safe
+speed behind its leader on the same lane: rear-end collisions cannot happen, the agents only have to
+learn the crossings (the unsignalized-intersection problem itself).
+"""
+
+import functools
+import re
+from pathlib import Path
+
+import gymnasium
+import numpy as np
+from pettingzoo import ParallelEnv
+
+from models.urban.scenarios import ACTIONS_MPS2
+from models.urban.sim import ACTION_S, SPEED_MODE_FREE, SPEED_MODE_LEADER_GUARD, ScenarioFiles, Simulation
+
+GOAL_REWARD = 100.0  # L of Eq 4.3 (not given; the thesis found the method insensitive to it); must outweigh c2 per step
+SAFE_DIST_M = 20.0  # safe_dist of Eq 4.5-4.7
+C1, C2, C3 = 0.2, 5.0, 0.4  # Eq 4.5, 4.6, 4.7
+BETA1, BETA2 = 3.0, 1.0  # Eq 3.2, 3.3 (i-MARL)
+INTER_TIME_S = 1.5  # two vehicles reaching a junction closer in time than this are predicted to collide
+POS_SCALE_M, LEADER_SCALE_M = 200.0, 200.0
+STATE_DIM = {"col": 6, "ind": 4}
+
+
+def junction_terms(junction: np.ndarray, road: np.ndarray, dist_m: np.ndarray, speed: np.ndarray, incoming_lanes: np.ndarray):
+    """col_term and density of every vehicle (Eq 4.2), vectorised over all vehicles and junctions.
+    junction = -1 for vehicles with no junction ahead; road = integer code of the vehicle's road."""
+    inter_time = dist_m / np.maximum(speed, 0.1)
+    active = junction >= 0
+    same_junction = (junction[:, None] == junction[None, :]) & active[:, None] & active[None, :]
+    other_road = road[:, None] != road[None, :]
+    close_in_time = np.abs(inter_time[:, None] - inter_time[None, :]) < INTER_TIME_S
+    col_term = (same_junction & other_road & close_in_time).any(axis=1).astype(float)
+    counts = np.bincount(junction[active], minlength=len(incoming_lanes))
+    density = np.where(active, counts[np.maximum(junction, 0)] / incoming_lanes[np.maximum(junction, 0)], 0.0)
+    return col_term, density
+
+
+def reward(variant: str, speed: np.ndarray, vmax: float, fveh_dist: np.ndarray, col_term: np.ndarray) -> np.ndarray:
+    """Non-terminal reward r(s, a), vectorised."""
+    fv = speed / vmax
+    near = (fveh_dist >= 0) & (fveh_dist < SAFE_DIST_M)
+    if variant == "ind":
+        return np.where(near, -(BETA2 + fv) * (SAFE_DIST_M - fveh_dist), BETA1 * fv)  # Eq 3.2, 3.3 with C = 1
+    fd = SAFE_DIST_M / np.maximum(np.minimum(fveh_dist, SAFE_DIST_M), 0.1)
+    return np.where(
+        col_term > 0,
+        np.where(near, -(C3 + fv) * fd, -(C2 + fv)),  # Eq 4.7, 4.6
+        np.where(near, -(C1 + fv) * fd, fv),  # Eq 4.5, 4.4
+    )
+
+
+@functools.lru_cache(maxsize=65536)
+def route_agent(vehicle_id: str) -> str:
+    """`r003.car.17` -> `r003:car` (vehicle ids are written by models.urban.scenarios); cached: asked every step."""
+    route, cls, _ = vehicle_id.rsplit(".", 2)
+    return f"{route}:{cls}"
+
+
+class UrbanParallelEnv(ParallelEnv):
+    metadata = {"name": "trafficlearn_urban_v0", "render_modes": []}
+
+    def __init__(self, files: ScenarioFiles, variant: str = "col", sumo_seed: int = 0, record: bool = False, leader_guard: bool = False):
+        if variant not in STATE_DIM:
+            raise ValueError(f"variant {variant!r}: expected one of {sorted(STATE_DIM)}")
+        self.files, self.variant, self.sumo_seed, self.record = files, variant, sumo_seed, record
+        self.speed_mode = SPEED_MODE_LEADER_GUARD if leader_guard else SPEED_MODE_FREE
+        text = Path(files.routes).read_text()
+        self.possible_agents = re.findall(r'<vehicle id="([^"]+)"', text)
+        self.route_edges = {  # route agent -> edges of its route
+            f"{rid}:{cls}": len(edges.split()) for rid, edges in re.findall(r'<route id="([^"]+)" edges="([^"]*)"', text) for cls in ACTIONS_MPS2
+        }
+        self.vmax = files.max_speed_mps
+        dim = STATE_DIM[variant]
+        self._obs_space = gymnasium.spaces.Box(-1.0, np.inf, (dim,), np.float32)
+        self._act_space = gymnasium.spaces.Discrete(5)
+        self.agents: list = []
+        self._roads: dict = {}
+        self.sim: Simulation | None = None
+        self.frames: list = []
+
+    def observation_space(self, agent):
+        return self._obs_space
+
+    def action_space(self, agent):
+        return self._act_space
+
+    def reset(self, seed: int | None = None, options: dict | None = None):
+        self.close()
+        self.sim = Simulation(self.files, model="IDM", seed=self.sumo_seed if seed is None else seed, speed_mode=self.speed_mode)
+        self.sim.start()
+        self.agents, self.frames, self.finished, obs = [], [], set(), {}
+        while not obs and not self.sim.done:
+            self.sim.advance(ACTION_S)
+            obs, _, _ = self._observe()
+        self.agents = list(obs)
+        return obs, {a: {"route_agent": route_agent(a)} for a in self.agents}
+
+    def step(self, actions: dict):
+        ls, sim = self.sim.ls, self.sim
+        ids = [a for a in self.agents if a in actions]
+        if ids:
+            snap = self._last
+            row = {v: i for i, v in enumerate(snap.ids)}
+            speed = snap.speed[[row[v] for v in ids]]
+            table = np.array([ACTIONS_MPS2["car" if ".car." in v else "heavy"] for v in ids])
+            accel = table[np.arange(len(ids)), np.array([int(actions[v]) for v in ids])]
+            # speed mode 32 follows orders beyond the limits: keep 0 <= v <= vel_max over the held second
+            accel = np.clip(accel, -speed / ACTION_S, (self.vmax - speed) / ACTION_S)
+            for v, a in zip(ids, accel):
+                ls.vehicle.setAcceleration(v, float(a), ACTION_S)
+        previous = self.agents
+        sim.advance(ACTION_S)
+        obs, rewards, goal = self._observe()
+        terminated = {}
+        for v in previous:
+            if v in sim.new_collisions or v in sim.new_teleports:
+                rewards[v], terminated[v] = -GOAL_REWARD, True
+                obs.setdefault(v, np.zeros(STATE_DIM[self.variant], np.float32))
+            elif v not in obs or v in goal:  # crossed its last junction (or arrived within the second)
+                rewards[v], terminated[v] = GOAL_REWARD, True
+                obs.setdefault(v, np.zeros(STATE_DIM[self.variant], np.float32))
+        self.finished |= sim.new_collisions | sim.new_teleports
+        sim.new_collisions, sim.new_teleports = set(), set()
+        terminated = {v: terminated.get(v, False) for v in obs}
+        done = sim.done
+        truncated = {v: done and not terminated[v] for v in obs}
+        self.agents = [v for v in obs if not terminated[v] and not truncated[v]]
+        infos = {v: {"route_agent": route_agent(v)} for v in obs}
+        return obs, rewards, terminated, truncated, infos
+
+    def _observe(self):
+        """State and reward of every vehicle on the road; hands vehicles past their last junction to the fixed rule."""
+        sim, idx = self.sim, self.sim.index
+        snap = sim.snapshot()
+        self._last = snap
+        if self.record:
+            self.frames.append(snap)
+        n = len(snap.ids)
+        if n == 0:
+            return {}, {}, set()
+        # per road, once: (code, junction ahead or inside, internal edge?)
+        roads = np.array([self._roads.get(r) or self._roads.setdefault(r, (len(self._roads), idx.junction_of(r), r.startswith(":")))
+                          for r in snap.road]).reshape(-1, 3)
+        road_code, junction, internal = roads[:, 0], roads[:, 1].copy(), roads[:, 2].astype(bool)
+        n_edges = np.array([self.route_edges[route_agent(v)] for v in snap.ids])
+        last_road = (snap.route_index >= n_edges - 1) & ~internal
+        junction[last_road] = -1
+        dist = np.where(internal, 0.0, np.maximum(snap.lane_len - snap.lane_pos, 0.0))
+        col_term, density = junction_terms(junction, road_code, dist, snap.speed, idx.incoming_lanes)
+        state = np.column_stack([
+            snap.speed / self.vmax,
+            dist / POS_SCALE_M,
+            np.where(snap.leader_dist >= 0, snap.leader_dist / LEADER_SCALE_M, -1.0),
+            np.where(snap.leader_speed >= 0, snap.leader_speed / self.vmax, -1.0),
+            col_term,
+            density,
+        ])[:, : STATE_DIM[self.variant]].astype(np.float32)
+        r = reward(self.variant, snap.speed, self.vmax, snap.leader_dist, col_term)
+        goal = set()
+        for i in np.flatnonzero(last_road):
+            v = snap.ids[i]
+            if v not in self.finished:
+                self.finished.add(v)
+                goal.add(v)
+                sim.ls.vehicle.setSpeedMode(v, 31)  # SUMO's safety checks back on
+                sim.ls.vehicle.setSpeed(v, self.vmax)  # max acceleration up to vel_max (§4.3.1)
+        keep = [i for i, v in enumerate(snap.ids) if v not in self.finished or v in goal]
+        obs = {snap.ids[i]: state[i] for i in keep}
+        rewards = {snap.ids[i]: float(r[i]) for i in keep}
+        return obs, rewards, goal
+
+    def close(self):
+        if self.sim is not None:
+            self.sim.close()
+            self.sim = None

@@ -1,0 +1,244 @@
+"""One libsumo simulation of a scenario copy, shared by the RL environment and the SUMO baselines.
+
+libsumo runs one simulation per process (a second `start` silently replaces the first): parallel
+episodes need processes (see models.urban.parallel). Facts measured on libsumo 1.28 that shape this file:
+- crossing collisions tunnel through each other at a 1 s step: we simulate at `step_s` = 0.2 s and the
+  agents act every `action_s` = 1 s; junction collisions are checked (`--collision.check-junctions`);
+- `--collision.action remove` takes both vehicles out (they then also show up in the arrived list, so
+  they are excluded from travel times); `--collision.mingap-factor 0` counts only real overlaps;
+- `--end` is not enforced under libsumo: we loop on simulation time and stop at `max_time_s`;
+- teleports (SUMO's way out of gridlock) are counted as failures.
+"""
+
+import functools
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from models.urban.network import UrbanInputError, read_net
+from models.urban.scenarios import VEHICLE_TYPES
+
+STEP_S = 0.2
+ACTION_S = 1.0
+SLACK_S = 300.0  # an episode ends at the last departure + this, whatever is still on the road has failed
+TELEPORT_AFTER_S = 120.0  # SUMO teleports a vehicle stuck this long (gridlock); we count it as a failure
+SPEED_MODE_FREE, SPEED_MODE_LEADER_GUARD = 32, 33
+LEADER_LOOKAHEAD_M = 200.0  # braking from 40 m/s at 5 m/s² takes 160 m
+
+
+@dataclass(frozen=True)
+class ScenarioFiles:
+    net: str
+    routes: str
+    folder: str  # holds vtypes_idm.add.xml and vtypes_krauss.add.xml
+    last_depart_s: float
+    max_speed_mps: float
+
+    def vtypes(self, model: str) -> str:
+        return str(Path(self.folder) / f"vtypes_{model.lower()}.add.xml")
+
+
+class NetIndex:
+    """Per-edge facts the state needs, as arrays: junction ahead, lane lengths, incoming lanes per junction."""
+
+    def __init__(self, net_path: str):
+        net = read_net(Path(net_path))
+        nodes = [n for n in net.getNodes()]
+        self.junction_ids = [n.getID() for n in nodes]
+        j_index = {j: i for i, j in enumerate(self.junction_ids)}
+        self.incoming_lanes = np.array([max(sum(e.getLaneNumber() for e in n.getIncoming()), 1) for n in nodes], float)
+        self.edge_junction = {e.getID(): j_index[e.getToNode().getID()] for e in net.getEdges()}
+        self.lane_length = {ln.getID(): ln.getLength() for e in net.getEdges() for ln in e.getLanes()}
+        self.j_index = j_index
+
+    def junction_of(self, road: str) -> int:
+        """Junction a vehicle on `road` drives to; on an internal edge (':J_3') the junction it is inside."""
+        if road.startswith(":"):
+            return self.j_index.get(road[1:].rsplit("_", 1)[0], -1)
+        return self.edge_junction.get(road, -1)
+
+
+@dataclass
+class Snapshot:
+    """Every vehicle on the road at one time, as arrays (one entry per vehicle, order of `ids`)."""
+
+    t: float
+    ids: list
+    speed: np.ndarray
+    lane_pos: np.ndarray
+    lane_len: np.ndarray
+    road: list
+    route_index: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    accel: np.ndarray
+    fuel_mgps: np.ndarray
+    leader_dist: np.ndarray  # -1 if no leader within LEADER_LOOKAHEAD_M
+    leader_speed: np.ndarray  # -1 if no leader
+
+
+@dataclass
+class Tally:
+    """What an episode did, for the metrics of Tables 3.2-4.9."""
+
+    depart: dict = field(default_factory=dict)
+    arrive: dict = field(default_factory=dict)
+    collided: set = field(default_factory=set)
+    collision_pairs: set = field(default_factory=set)
+    collision_types: dict = field(default_factory=dict)  # SUMO's kind: collision (same lane), junction, frontal, ...
+    teleported: set = field(default_factory=set)
+    speed_sum: float = 0.0
+    fuel_ml_sum: float = 0.0
+    samples: int = 0
+    vehicle_substeps: int = 0
+
+
+class Simulation:
+    """A libsumo run of one scenario copy. `speed_mode` None: SUMO's own driver model (`model`) drives —
+    the IDM / Krauss baselines. Otherwise the RL env's vehicles get this speed mode on departure:
+    SPEED_MODE_FREE (32) ignores right of way and safe speeds and does exactly what it is told (the
+    thesis: SUMO's safety checks off); SPEED_MODE_LEADER_GUARD (33) additionally lets SUMO cap the speed
+    at the safe speed behind the leader on the same lane (no rear-end collisions; crossings stay free)."""
+
+    def __init__(self, files: ScenarioFiles, model: str = "IDM", seed: int = 0, speed_mode: int | None = None, step_s: float = STEP_S):
+        self.files, self.model, self.seed, self.speed_mode, self.step_s = files, model, seed, speed_mode, step_s
+        for p in (files.net, files.routes, files.vtypes(model)):
+            if not Path(p).exists():
+                raise UrbanInputError(f"{p}: scenario file not found")
+        self.index = NetIndex(files.net)
+        self.max_time_s = files.last_depart_s + SLACK_S
+
+    def start(self) -> None:
+        import libsumo as ls
+
+        args = ["sumo", "-n", self.files.net, "-a", self.files.vtypes(self.model), "-r", self.files.routes,
+                "--step-length", str(self.step_s), "--seed", str(self.seed), "--begin", "0",
+                "--collision.action", "remove", "--collision.check-junctions", "true",
+                "--collision.check-junctions.mingap", "-0.5", "--collision.mingap-factor", "0", "--time-to-teleport", str(TELEPORT_AFTER_S),
+                "--no-step-log", "true", "--no-warnings", "true", "--duration-log.disable", "true"]
+        try:
+            ls.start(args)
+        except ls.TraCIException as e:
+            raise UrbanInputError(f"{self.files.routes}: SUMO cannot load the scenario ({e})") from None
+        self.ls, self.tally = ls, Tally()
+        self.new_collisions: set = set()
+        self.new_teleports: set = set()
+
+    def advance(self, seconds: float) -> list:
+        """Simulate `seconds` in sub-steps; returns the vehicles that departed meanwhile."""
+        ls, tally = self.ls, self.tally
+        departed = []
+        for _ in range(int(round(seconds / self.step_s))):
+            ls.simulationStep()
+            t = ls.simulation.getTime()
+            for v in ls.simulation.getDepartedIDList():
+                if self.speed_mode is not None:
+                    ls.vehicle.setSpeedMode(v, self.speed_mode)
+                tally.depart[v] = t - self.step_s
+                departed.append(v)
+            for col in ls.simulation.getCollisions():
+                pair = frozenset((col.collider, col.victim))
+                if pair not in tally.collision_pairs:
+                    tally.collision_pairs.add(pair)
+                    tally.collision_types[col.type] = tally.collision_types.get(col.type, 0) + 1
+                    self.new_collisions |= pair
+                tally.collided |= pair
+            for v in ls.simulation.getStartingTeleportIDList():
+                tally.teleported.add(v)
+                self.new_teleports.add(v)
+            for v in ls.simulation.getArrivedIDList():
+                if v not in tally.collided:
+                    tally.arrive[v] = t
+            tally.vehicle_substeps += ls.vehicle.getIDCount()
+        return departed
+
+    def snapshot(self) -> Snapshot:
+        """All vehicles now, read once per decision with libsumo getters (a subscription would be recomputed
+        by SUMO at every 0.2 s sub-step: 2-3x slower), as one numeric array; also samples speed and fuel
+        for the metrics."""
+        veh = self.ls.vehicle
+        ids = list(veh.getIDList())
+        leaders = [veh.getLeader(v, LEADER_LOOKAHEAD_M) for v in ids]
+        vals = [(veh.getLaneID(v), veh.getRoadID(v), ld[0] if ld and ld[0] else "") for v, ld in zip(ids, leaders)]
+        num = np.array(
+            [(veh.getSpeed(v), veh.getLanePosition(v), veh.getRouteIndex(v), *veh.getPosition(v), veh.getAcceleration(v),
+              veh.getFuelConsumption(v), ld[1] if ld and ld[0] else -1.0) for v, ld in zip(ids, leaders)],
+            float,
+        ).reshape(-1, 8)
+        # vehicles being teleported are off the network (speed = SUMO's invalid value): left out
+        ok = num[:, 0] >= 0
+        if not ok.all():
+            keep = np.flatnonzero(ok)
+            ids, vals, num = [ids[i] for i in keep], [vals[i] for i in keep], num[ok]
+        lead_id = [r[2] for r in vals]
+        speed_of = dict(zip(ids, num[:, 0]))
+        snap = Snapshot(
+            t=self.ls.simulation.getTime(),
+            ids=ids,
+            speed=num[:, 0],
+            lane_pos=num[:, 1],
+            lane_len=np.array([self.index.lane_length.get(r[0], 0.0) for r in vals]),
+            road=[r[1] for r in vals],
+            route_index=num[:, 2].astype(int),
+            x=num[:, 3],
+            y=num[:, 4],
+            accel=num[:, 5],
+            fuel_mgps=num[:, 6],
+            leader_dist=num[:, 7],
+            leader_speed=np.array([speed_of.get(li, -1.0) if li else -1.0 for li in lead_id]),
+        )
+        density = np.array([_fuel_density(v) for v in ids])
+        self.tally.speed_sum += float(snap.speed.sum())
+        self.tally.fuel_ml_sum += float((snap.fuel_mgps / density).sum()) if ids else 0.0
+        self.tally.samples += len(ids)
+        return snap
+
+    @property
+    def time(self) -> float:
+        return self.ls.simulation.getTime()
+
+    @property
+    def done(self) -> bool:
+        return self.ls.simulation.getMinExpectedNumber() == 0 or self.time >= self.max_time_s
+
+    def close(self) -> None:
+        self.ls.close()
+
+    def metrics(self, n_vehicles: int) -> dict:
+        """Average travel time of the vehicles that reached their destination, average speed and fuel over
+        1 s samples of all vehicles, distinct colliding pairs, teleports; success = no collision, no
+        teleport and every vehicle arrived."""
+        t = self.tally
+        tt = [t.arrive[v] - t.depart[v] for v in t.arrive]
+        return {
+            "avg_travel_time_s": float(np.mean(tt)) if tt else float("nan"),
+            "avg_speed_mps": t.speed_sum / t.samples if t.samples else float("nan"),
+            "avg_fuel_mlps": t.fuel_ml_sum / t.samples if t.samples else float("nan"),
+            "collisions": len(t.collision_pairs),
+            "teleports": len(t.teleported),
+            "arrived": len(t.arrive),
+            "success": not t.collision_pairs and not t.teleported and len(t.arrive) == n_vehicles,
+        }
+
+
+@functools.lru_cache(maxsize=65536)
+def _fuel_density(vehicle_id: str) -> float:
+    """mg/ml of the vehicle's fuel: ids are `<route>.<agent class>.<n>`; the heavy class burns diesel either way."""
+    return VEHICLE_TYPES["car" if vehicle_id.split(".")[-2] == "car" else "bus"].fuel_density_mg_per_ml
+
+
+def run_sumo_model(files: ScenarioFiles, n_vehicles: int, model: str, seed: int, record: bool = False) -> tuple[dict, list]:
+    """A SUMO baseline (IDM or Krauss) on the same unsignalized network and demand; optional 1 s trajectories."""
+    sim = Simulation(files, model=model, seed=seed)
+    sim.start()
+    frames = []
+    try:
+        while not sim.done:
+            sim.advance(ACTION_S)
+            snap = sim.snapshot()
+            if record:
+                frames.append(snap)
+        return sim.metrics(n_vehicles), frames
+    finally:
+        sim.close()

@@ -1,0 +1,130 @@
+"""Trajectory imitation on a real subset: metrics, environment, BC/GAIL learning, reload, determinism, CLI errors."""
+
+from pathlib import Path
+
+import numpy as np
+import polars as pl
+import pytest
+import torch
+
+from models.aviation.airports import flights_table
+from models.aviation.ingest import ingest
+from models.aviation.modes import trajectory_modes
+from models.aviation.phases import assign_phases
+from models.aviation.resample import resample
+from models.aviation.split import split_flights
+from models.aviation.weather import read_weather
+from models.trajectory.evaluate import evaluate_model, metrics_table
+from models.trajectory.metrics import matched_errors
+from models.trajectory.model import TrajectoryModel, TrajectoryModelError
+from models.trajectory.predict import PredictionInputError, main, predict_flights, read_first_states
+from models.trajectory.training import Budget, prepare, random_policy_like, train_model
+
+REPO = Path(__file__).resolve().parents[2]
+OPENSKY = REPO / "data" / "opensky" / "kaliningrad_2022-02-22_2022-03-05.parquet"
+GFS = REPO / "data" / "weather" / "gfs_2011_isobaric_t_u_v.grib2"
+torch.set_num_threads(1)
+
+
+@pytest.fixture(scope="module")
+def setup():
+    """The real pipeline on the bundled data: ingest -> 20 s tracks -> phases -> modes -> split -> demonstrations."""
+    tracks, _, _ = ingest(OPENSKY)
+    flights = flights_table(tracks)
+    tracks20 = assign_phases(resample(tracks), flights)
+    modes, _ = trajectory_modes(tracks20, flights)
+    splits = split_flights(flights, modes)
+    return prepare(tracks20, modes, flights, splits, read_weather(GFS), 20.0), tracks20
+
+
+@pytest.fixture(scope="module")
+def trained(setup):
+    return train_model(setup[0], "triple_gail", "SMIL", 0, Budget(bc_epochs=8, gail_iterations=2), "bce_gp")
+
+
+def test_matched_errors_units_and_zero():
+    t = np.linspace(0, 1, 50)
+    a = np.stack([20 + 2 * t, 55 + 0 * t, 10_000 + 0 * t], 1)
+    assert matched_errors(a, a)["rmse_3d_nm"] == 0
+    up = a.copy()
+    up[:, 2] += 304.8  # 1000 ft higher: vertical error 1000 ft, no horizontal error
+    e = matched_errors(a, up)
+    assert e["vertical_ft"] == pytest.approx(1000)
+    assert e["rmse_lat_nm"] == 0 and e["cte_nm"] == 0
+    with pytest.raises(ValueError, match="shape"):
+        matched_errors(a[:, :2], a)
+
+
+def test_env_steps_a_batch_and_terminates_at_the_goal(setup):
+    s = setup[0]
+    task = s.task("climb")
+    idx = torch.arange(64)
+    obs = s.env.reset(task.starts[idx], task.pair_goal[idx], 5, torch.zeros(64, dtype=torch.float64), task.start_day[idx])
+    assert obs.shape == (64, task.obs.shape[1]) and torch.isfinite(obs).all()
+    s.env.step(task.pair_goal[idx] - task.starts[idx])  # jump onto the goal: every trajectory succeeds
+    assert s.env.done.all() and s.env.reached.all()
+
+
+def test_losses_decrease_and_learned_policy_beats_random(setup, trained):
+    model, history = trained
+    h = history["all"]
+    assert h["bc_loss"][-1] < 0.5 * h["bc_loss"][0]
+    assert h["selector_warm_loss"][-1] < h["selector_warm_loss"][0]
+    learned = metrics_table(evaluate_model(setup[0], model).errors)
+    rnd = metrics_table(evaluate_model(setup[0], random_policy_like(model, 0)).errors)
+    pick = lambda m: m.filter((pl.col("phase") == "total") & (pl.col("metric") == "rmse_3d_nm"))["mean"][0]  # noqa: E731
+    assert pick(learned) < 0.5 * pick(rnd)
+
+
+def test_saved_model_reloads_and_predicts_identically(setup, trained, tmp_path):
+    model, _ = trained
+    test = setup[0].demos["all"][1]
+    starts = np.stack([p[0] for p in test.points[:4]])
+    path = model.save(tmp_path / "m.pt")
+    again = TrajectoryModel.load(path)
+    a = model.predict(starts, test.routes[:4], test.start_s[:4])["all"][0]
+    b = again.predict(starts, test.routes[:4], test.start_s[:4])["all"][0]
+    assert all(np.array_equal(x, y) for x, y in zip(a.positions, b.positions))
+    assert np.array_equal(a.modes, b.modes)
+    assert path.with_suffix(".json").is_file()
+
+
+def test_same_seed_same_metrics(setup):
+    budget = Budget(bc_epochs=2, gail_iterations=1)
+    runs = [metrics_table(evaluate_model(setup[0], train_model(setup[0], "sinfo_gail", "MMIL", 3, budget, "wgan_gp")[0]).errors)
+            for _ in range(2)]
+    assert runs[0].equals(runs[1])
+
+
+def test_bad_model_files_give_one_line_errors(tmp_path):
+    with pytest.raises(TrajectoryModelError, match="not found"):
+        TrajectoryModel.load(tmp_path / "missing.pt")
+    junk = tmp_path / "junk.pt"
+    junk.write_bytes(b"not a torch file")
+    with pytest.raises(TrajectoryModelError, match="not a trajectory model"):
+        TrajectoryModel.load(junk)
+    torch.save({"format": "something else"}, tmp_path / "other.pt")
+    with pytest.raises(TrajectoryModelError, match="expected format"):
+        TrajectoryModel.load(tmp_path / "other.pt")
+
+
+def test_prediction_cli_and_bad_inputs(setup, trained, tmp_path, capsys):
+    model, _ = trained
+    path = model.save(tmp_path / "m.pt")
+    first = setup[1].sort("flight_id", "ts").group_by("flight_id", maintain_order=True).first().head(3)
+    first = first.join(pl.DataFrame({"flight_id": setup[0].demos["all"][1].flight_ids + setup[0].demos["all"][0].flight_ids,
+                                     "route": setup[0].demos["all"][1].routes + setup[0].demos["all"][0].routes}), on="flight_id")
+    flights = tmp_path / "first.parquet"
+    first.write_parquet(flights)
+    assert main(["--model", str(path), "--flights", str(flights), "--out", str(tmp_path / "out.parquet")]) == 0
+    out = pl.read_parquet(tmp_path / "out.parquet")
+    assert out["flight_id"].n_unique() == 3 and out["step"].min() == 0
+    assert predict_flights(model, read_first_states(flights)).height == out.height
+    first.drop("route").write_parquet(tmp_path / "noroute.parquet")
+    assert main(["--model", str(path), "--flights", str(tmp_path / "noroute.parquet"), "--out", str(tmp_path / "x.parquet")]) == 2
+    assert "missing column(s) route" in capsys.readouterr().err
+    first.with_columns(pl.col("alt_m") * 3.28084 * 10).write_parquet(tmp_path / "feet.parquet")
+    with pytest.raises(PredictionInputError, match="feet"):
+        read_first_states(tmp_path / "feet.parquet")
+    assert main(["--model", str(tmp_path / "nope.pt"), "--flights", str(flights), "--out", str(tmp_path / "x.parquet")]) == 2
+    assert "not found" in capsys.readouterr().err

@@ -1,0 +1,76 @@
+"""The environment over real libsumo: collisions detected, Eq 4.2 terms, determinism, PettingZoo API."""
+
+import numpy as np
+import pytest
+
+from models.urban.col_marl import EpisodeJob, RouteAgentsQ, numpy_params, run_episode
+from models.urban.env import GOAL_REWARD, UrbanParallelEnv, junction_terms, reward
+from models.urban.network import UrbanInputError
+from models.urban.sim import ScenarioFiles, Simulation, run_sumo_model
+
+from urban_fixtures import crossing_copy, make_copy
+
+HOLD = 2  # index of the zero acceleration in Table 4.1
+
+
+def test_forced_crossing_is_a_collision(tmp_path, sc1_net):
+    env = UrbanParallelEnv(crossing_copy(tmp_path / "cross", sc1_net))
+    obs, infos = env.reset(seed=0)
+    assert set(obs) == {"r000.car.0", "r001.car.1"} and infos["r000.car.0"]["route_agent"] == "r000:car"
+    assert all(o[4] == 1.0 for o in obs.values())  # both predicted to collide: same inter_time, other roads
+    penalties = {}
+    while env.agents:
+        obs, rewards, terminated, truncated, _ = env.step({a: HOLD for a in env.agents})
+        penalties.update({v: r for v, r in rewards.items() if terminated.get(v)})
+    tally = env.sim.tally
+    env.close()
+    assert len(tally.collision_pairs) == 1 and tally.collision_types == {"junction": 1}
+    assert penalties == {"r000.car.0": -GOAL_REWARD, "r001.car.1": -GOAL_REWARD}
+
+
+def test_sumo_idm_obeys_right_before_left_on_the_same_crossing(tmp_path, sc1_net):
+    metrics, _ = run_sumo_model(crossing_copy(tmp_path / "cross", sc1_net), 2, "IDM", 0)
+    assert metrics["collisions"] == 0 and metrics["arrived"] == 2 and metrics["success"]
+
+
+def test_junction_terms_and_reward():
+    # vehicles 0 and 1 reach junction 0 from different roads 0.5 s apart; 2 follows 0 on its road; 3 is on its last road
+    junction = np.array([0, 0, 0, -1])
+    road = np.array([0, 1, 0, 2])
+    col, density = junction_terms(junction, road, np.array([100.0, 110.0, 130.0, 50.0]), np.array([10.0, 10.0, 10.0, 10.0]), np.array([4.0]))
+    assert col.tolist() == [1.0, 1.0, 0.0, 0.0]
+    assert density.tolist() == [0.75, 0.75, 0.75, 0.0]
+    r = reward("col", np.array([20.0, 20.0, 20.0, 20.0]), 40.0, np.array([-1.0, 10.0, -1.0, 10.0]), np.array([0.0, 0.0, 1.0, 1.0]))
+    assert r == pytest.approx([0.5, -(0.2 + 0.5) * 2.0, -(5.0 + 0.5), -(0.4 + 0.5) * 2.0])  # Eq 4.4, 4.5, 4.6, 4.7
+    assert reward("ind", np.array([20.0]), 40.0, np.array([10.0]), np.array([1.0])) == pytest.approx([-(1.0 + 0.5) * 10.0])
+
+
+def test_same_seed_same_episode(tmp_path, sc1_net):
+    files, routes = make_copy(tmp_path / "c", sc1_net, 20, 80.0)
+    agents = [f"{r['route_id']}:{c}" for r in routes for c in ("car", "heavy")]
+    import torch
+
+    params = numpy_params(RouteAgentsQ(len(agents), 6, torch.Generator().manual_seed(0)))
+    a, b = (run_episode(EpisodeJob(files, "col", agents, params, 0.5, 11, 20)) for _ in range(2))
+    assert a.metrics == b.metrics
+    assert all(np.array_equal(a.transitions[k], b.transitions[k]) for k in a.transitions)
+    c = run_episode(EpisodeJob(files, "col", agents, params, 0.5, 12, 20))
+    assert not np.array_equal(a.transitions["action"], c.transitions["action"])
+
+
+def test_pettingzoo_parallel_api(tmp_path, sc1_net):
+    from pettingzoo.test import parallel_api_test
+
+    files, _ = make_copy(tmp_path / "c", sc1_net, 10, 40.0)
+    parallel_api_test(UrbanParallelEnv(files, "ind"), num_cycles=200)
+
+
+def test_bad_route_file_gives_one_clear_line(tmp_path, sc1_net):
+    files, _ = make_copy(tmp_path / "c", sc1_net, 5, 20.0)
+    broken = tmp_path / "c" / "broken.rou.xml"
+    broken.write_text('<routes><route id="r" edges="no_such_edge"/><vehicle id="r.car.0" type="car" route="r" depart="0"/></routes>')
+    sim = Simulation(ScenarioFiles(files.net, str(broken), files.folder, 0.0, 40.0))
+    with pytest.raises(UrbanInputError, match="broken.rou.xml: SUMO cannot load"):
+        sim.start()
+    with pytest.raises(UrbanInputError, match="scenario file not found"):
+        Simulation(ScenarioFiles(files.net, str(tmp_path / "none.rou.xml"), files.folder, 0.0, 40.0))

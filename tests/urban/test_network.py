@@ -1,0 +1,55 @@
+"""Networks with the real SUMO tools: unsignalized, routes enumerated, bad files refused in one line."""
+
+import pytest
+
+from models.urban.experiments import REAL_NET
+from models.urban.network import UrbanInputError, artificial_network, enumerate_routes, junction_census, osm_network, sumo_network
+
+REPO_OSM = REAL_NET.parent / "monaco_network.osm.gz"
+
+
+@pytest.mark.parametrize("n, roads, pairs", [(1, 8, 12), (2, 14, 30), (4, 24, 56)])
+def test_artificial_networks_are_unsignalized_grids(tmp_path, n, roads, pairs):
+    net = artificial_network(n, tmp_path / f"sc{n}.net.xml")
+    census = junction_census(net)
+    assert census.junctions == n  # Fig 4.2: 1, 2, 4 intersections
+    assert census.traffic_lights == 0
+    assert set(census.types) == {"right_before_left", "dead_end"}  # no priority junctions
+    routes = enumerate_routes(net, 100, 0)
+    assert len(routes) == pairs
+    assert all(r["n_junctions"] >= 1 for r in routes)
+    assert len({len(r["edges"].split()) for r in routes}) >= 1
+    sampled = enumerate_routes(net, 5, 0)
+    assert len(sampled) == min(5, pairs) and sampled == enumerate_routes(net, 5, 0)
+
+
+def test_bundled_real_network_loses_its_lights_and_priorities(tmp_path):
+    net = sumo_network(REAL_NET, tmp_path / "real.net.xml", speed_mps=30.0)
+    census = junction_census(net)
+    assert census.traffic_lights == 0 and "traffic_light" not in census.types and "priority" not in census.types
+    assert 60 <= census.junctions <= 120
+    routes = enumerate_routes(net, 20, 0)
+    assert len(routes) == 20 and max(r["n_junctions"] for r in routes) >= 3
+
+
+def test_osm_extract_through_netconvert(tmp_path):
+    net = osm_network(REPO_OSM, tmp_path / "monaco.net.xml")
+    census = junction_census(net)
+    assert census.junctions > 100 and census.traffic_lights == 0
+    assert set(census.types) <= {"right_before_left", "dead_end"}
+
+
+def test_bad_network_file_gives_one_clear_line(tmp_path):
+    bad = tmp_path / "bad.net.xml"
+    bad.write_text("<net><edge id='a' broken")
+    with pytest.raises(UrbanInputError, match="bad.net.xml"):
+        junction_census(bad)
+    with pytest.raises(UrbanInputError, match="not found"):
+        sumo_network(tmp_path / "missing.net.xml", tmp_path / "out.net.xml")
+    with pytest.raises(UrbanInputError, match="not a gzip"):
+        (tmp_path / "x.net.xml.gz").write_text("plain text")
+        sumo_network(tmp_path / "x.net.xml.gz", tmp_path / "out.net.xml")
+    notosm = tmp_path / "city.osm"
+    notosm.write_text("not xml at all")
+    with pytest.raises(UrbanInputError, match="city.osm: netconvert failed"):
+        osm_network(notosm, tmp_path / "out.net.xml")

@@ -1,0 +1,42 @@
+"""Trajectories (FCD), the Fig 4.4 profile and the rerun replay, from real recorded SUMO episodes."""
+
+import numpy as np
+import polars as pl
+import rerun as rr
+
+from models.urban.col_marl import EpisodeJob
+from models.urban.experiments import SumoJob, run_job, trajectories_rows
+from models.urban.plots import busiest_route, junction_offsets_m, route_profile_png, route_profiles
+from models.urban.recording import write_episode_recording
+from urban_fixtures import crossing_copy, make_copy
+
+AGENTS = ["r000:car", "r000:heavy", "r001:car", "r001:heavy"]
+
+
+def _hold_policy() -> dict:
+    """Route agents whose greedy action is always 'zero acceleration' (index 2 of Table 4.1)."""
+    b2 = np.zeros((4, 5))
+    b2[:, 2] = 1.0
+    return {"w1": np.zeros((4, 6, 128)), "b1": np.zeros((4, 128)), "w2": np.zeros((4, 128, 5)), "b2": b2}
+
+
+def test_trajectories_profile_and_recording(tmp_path, sc1_net):
+    files, routes = make_copy(tmp_path / "c", sc1_net, 20, 80.0)
+    cross = crossing_copy(tmp_path / "x", sc1_net)
+    keys = [("sc1", 0, "idm", 0, 20), ("cross", 0, "col_marl", 0, 2)]
+    outputs = [run_job(SumoJob(files, "IDM", 0, 20, record=True)),
+               run_job(EpisodeJob(cross, "col", AGENTS, _hold_policy(), 0.0, 0, 2, record=True))]
+    traj = trajectories_rows(keys, outputs)
+    idm, crossing = traj.filter(pl.col("scenario") == "sc1"), traj.filter(pl.col("scenario") == "cross")
+    assert idm["vehicle_id"].n_unique() == 20 and not idm["collided"].any()
+    assert crossing["collided"].all() and set(crossing["agent"]) == {"r000:car", "r001:car"}
+
+    route = busiest_route(idm, "idm")
+    prof = route_profiles(idm, route)
+    assert prof["bin_m"].min() == 0 and prof["speed_mps"].max() > 5
+    junctions = junction_offsets_m(next(r["edges"] for r in routes if r["route_id"] == route), str(sc1_net))
+    assert len(junctions) == 1 and route_profile_png(idm, route, junctions, "test")[:4] == b"\x89PNG"
+
+    rrd = write_episode_recording(crossing, str(sc1_net), tmp_path / "ep.rrd", "test")
+    entities = {str(c.entity_path) for c in rr.chunk.RrdReader(rrd).stream()}
+    assert {"/vehicles", "/network/lanes"} <= entities and sum(e.startswith("/collisions/") for e in entities) == 2

@@ -1,0 +1,32 @@
+"""Demand: 75/15/10 mix, constant or noisy arrivals, LS streams, seeded copies."""
+
+import numpy as np
+
+from models.urban.scenarios import Demand, vehicles
+
+
+def test_constant_arrivals_and_mix():
+    v = vehicles(Demand(200, 800.0), n_routes=12, seed=1)
+    assert len(v["depart_s"]) == 200
+    assert np.allclose(np.diff(v["depart_s"]), 4.0)  # one vehicle every 4 s (Table 4.2)
+    kinds, counts = np.unique(v["vtype"], return_counts=True)
+    assert dict(zip(kinds, counts)) == {"car": 150, "bus": 30, "truck": 20}
+    assert set(v["route"]) == set(range(12))
+
+
+def test_noise_changes_gaps_but_not_the_mean_much():
+    gaps = np.diff(vehicles(Demand(400, 1600.0, noise_sigma_s=1.0), 12, 3)["depart_s"])
+    assert gaps.std() > 0.5 and abs(gaps.mean() - 4.0) < 0.2
+
+
+def test_large_scale_streams():
+    v = vehicles(Demand(0, 1800.0, "ls"), 30, 0)
+    kinds, counts = np.unique(v["vtype"], return_counts=True)
+    assert dict(zip(kinds, counts)) == {"car": 450, "bus": 180, "truck": 120}  # every 4 / 10 / 15 s for 30 min
+    assert np.all(np.diff(v["depart_s"]) >= 0)
+
+
+def test_same_seed_same_copy_other_seed_other_copy():
+    a, b, c = (vehicles(Demand(50, 200.0, noise_sigma_s=0.5), 12, s) for s in (7, 7, 8))
+    assert all(np.array_equal(a[k], b[k]) for k in a)
+    assert not np.array_equal(a["route"], c["route"])

@@ -1,0 +1,27 @@
+"""Helpers of the urban tests (imported as a plain module: pytest puts tests/urban on sys.path)."""
+
+from pathlib import Path
+
+from models.urban.network import enumerate_routes
+from models.urban.scenarios import Demand, vtypes_xml, write_copy
+from models.urban.sim import ScenarioFiles
+
+
+def make_copy(folder: Path, net: Path, n_vehicles: int = 30, duration_s: float = 120.0, seed: int = 0, vmax: float = 40.0):
+    routes = enumerate_routes(net, 12, 0)
+    info = write_copy(folder, net, routes, Demand(n_vehicles, duration_s), vmax, seed)
+    return ScenarioFiles(str(net), info["routes_path"], info["folder"], info["last_depart_s"], vmax), routes
+
+
+def crossing_copy(folder: Path, net: Path) -> ScenarioFiles:
+    """Two cars on crossing routes of Sc1, same entry time, same distance to the junction: if both hold
+    their speed they meet in the middle of the junction."""
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "routes.rou.xml").write_text(
+        '<routes>\n  <route id="r000" edges="left0A0 A0right0"/>\n  <route id="r001" edges="bottom0A0 A0top0"/>\n'
+        '  <vehicle id="r000.car.0" type="car" route="r000" depart="0" departSpeed="10" departPos="base"/>\n'
+        '  <vehicle id="r001.car.1" type="car" route="r001" depart="0" departSpeed="10" departPos="base"/>\n</routes>\n'
+    )
+    for model in ("IDM", "Krauss"):
+        (folder / f"vtypes_{model.lower()}.add.xml").write_text(vtypes_xml(model, 40.0))
+    return ScenarioFiles(str(net), str(folder / "routes.rou.xml"), str(folder), 0.0, 40.0)

@@ -1,5 +1,15 @@
 """Air traffic congestion (DCB) assets (issue 5): exposes ASSETS, CHECKS and JOBS for pipelines.definitions."""
 
-ASSETS: list = []
-CHECKS: list = []
-JOBS: list = []
+import dagster as dg
+
+from assets.dcb import airspace, cases, checks, results, training
+
+ASSETS = dg.load_assets_from_modules([airspace, cases, training, results])
+CHECKS = checks.CHECKS
+JOBS = [
+    dg.define_asset_job(
+        "dcb",
+        selection=dg.AssetSelection.groups("dcb"),
+        description="Load a day of traffic and a sectorisation, find the hotspots, solve them exactly and with every learner, report.",
+    )
+]

@@ -36,7 +36,7 @@ def trajectory_evaluation(context: dg.AssetExecutionContext, config: TrajectoryE
     from models.trajectory.report import markdown_table
     from models.trajectory.training import prepare
 
-    torch.set_num_threads(2)
+    torch.set_num_threads(1)  # small nets; with 2 threads on a busy 2-core machine OpenMP contention made training ~10x slower
     t0 = time.perf_counter()
     setup = prepare(tracks_20s, trajectory_modes, flights, flight_splits, weather, config.dt_s)
     res = evaluate_baselines(setup)

@@ -42,7 +42,7 @@ def trajectory_models(context: dg.AssetExecutionContext, config: TrajectoryModel
     from models.trajectory.report import markdown_table
     from models.trajectory.training import Budget, catalogue_row, prepare, runs, train_model
 
-    torch.set_num_threads(2)
+    torch.set_num_threads(1)  # small nets; with 2 threads on a busy 2-core machine OpenMP contention made training ~10x slower
     p = resolve(config, ("seeds", "bc_epochs", "gail_iterations", "discriminators", "algorithms"))
     if bad := [d for d in p["discriminators"] if d not in DISCRIMINATORS]:
         raise ValueError(f"discriminators: unknown {bad}, expected {DISCRIMINATORS}")

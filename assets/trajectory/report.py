@@ -1,6 +1,6 @@
-"""Report: the thesis's Tables 7.2-7.9 and Figs 7.11-7.13 for our data, a rerun recording and an MCAP export.
+"""Report: the thesis's Tables 6.1 and 7.2-7.9 and Figs 7.11-7.13 for our data, a rerun recording and an MCAP export.
 
-trajectory_metrics, trajectory_error_growth, mode_posteriors, trajectory_predictions -> trajectory_report
+trajectory_metrics, trajectory_error_growth, mode_posteriors, trajectory_predictions, applearn_results -> trajectory_report
 """
 
 import dagster as dg
@@ -9,14 +9,17 @@ import polars as pl
 from warehouse.artifacts import artifact_path, save_plot, write_bytes_atomic
 
 
-@dg.asset(group_name="trajectory", description="Thesis Tables 7.2-7.9 and error-growth Figs 7.11-7.13 as metadata; rerun + MCAP of actual vs predicted.")
+@dg.asset(group_name="trajectory", description="Thesis Tables 6.1, 7.2-7.9 and error-growth Figs 7.11-7.13 as metadata; rerun + MCAP of actual vs predicted.")
 def trajectory_report(context: dg.AssetExecutionContext, trajectory_metrics: pl.DataFrame, trajectory_error_growth: pl.DataFrame,
-                      mode_posteriors: pl.DataFrame, trajectory_predictions: pl.DataFrame, tracks_20s: pl.DataFrame):
+                      mode_posteriors: pl.DataFrame, trajectory_predictions: pl.DataFrame, tracks_20s: pl.DataFrame,
+                      applearn_results: pl.DataFrame):
+    from models.trajectory.applearn_eval import table_6_1
     from models.trajectory.recording import points_for_recording, write_location_fix_mcap, write_prediction_recording
     from models.trajectory.report import growth_figure, growth_rates, markdown_table, thesis_tables
 
     files, meta = [], {}
-    for item, md in thesis_tables(trajectory_metrics, mode_posteriors).items():
+    tables = {"table_6_1": markdown_table(table_6_1(applearn_results)), **thesis_tables(trajectory_metrics, mode_posteriors)}
+    for item, md in tables.items():
         path = write_bytes_atomic(artifact_path("reports/trajectory", f"{item}.md"), md.encode())
         files.append((item, "markdown", path))
         meta[item] = dg.MetadataValue.md(md)

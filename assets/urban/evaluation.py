@@ -11,7 +11,7 @@ from assets.urban.training import default_workers, load_policies
 from models.urban.experiments import run_job
 from warehouse.artifacts import artifact_path, save_plot
 
-METHODS = ["col_marl", "i_marl", "idm", "krauss"]
+METHODS = ["col_marl", "i_marl", "ch3_dqn_cnn", "idm", "krauss"]
 
 
 class EvaluationConfig(dg.Config):

@@ -23,7 +23,8 @@ class TrainingConfig(dg.Config):
     profile: str = Field(default=default_profile(), description="demo: 50 episodes, seed 0; paper: 15,000 episodes, seeds 0-9")
     episodes: int | None = Field(default=None, description="training episodes per scenario, method and seed (None: the profile's)")
     seeds: list[int] | None = Field(default=None, description="training seeds, one policy set each (None: the profile's)")
-    methods: list[str] = Field(default=["col_marl", "i_marl"], description="col_marl and/or i_marl")
+    methods: list[str] = Field(default=["col_marl", "i_marl", "ch3_dqn_cnn"],
+                                description="col_marl, i_marl and/or ch3_dqn_cnn (chapter 3: speed actions, DQN + CNN over the collision matrix)")
     workers: int | None = Field(default=None, description="episodes run in parallel, one libsumo process each (None: usable cores)")
     leader_guard: bool = Field(
         default=False,

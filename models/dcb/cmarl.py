@@ -12,9 +12,10 @@ a*_ij in the target is the best joint action of the edge's own table at s'_ij (t
 is not known yet when the edge is updated).
 
 Storage: the joint tables Q_ij are tabular but sparse (a day has thousands of possible peer pairs
-and (states)^2 x 4 entries each), so they live in one flat array indexed by a multiplicative hash of
-(i, j, s_i, s_j, a_i, a_j). Two keys can share a slot (2^22 slots; the visited keys are a few hundred
-thousand, so collisions are rare) - the same approximation as CMAC hashing in Sutton & Barto §9.5.4.
+and (states)^2 x 4 entries each), so they live in one [2^20, 4] array whose row is a multiplicative
+hash of (i, j, s_i, s_j) and whose 4 columns are the joint actions (one cache line per edge lookup).
+Two keys can share a row (2^20 rows; the visited joint states are a few hundred thousand at most, so
+collisions are rare) - the same approximation as CMAC hashing in Sutton & Barto §9.5.4.
 HCMARL's transfer: a ground lookup is Q_abstract(φ(s_ij)) + ΔQ_ground(s_ij), with ΔQ starting at 0 -
 exactly "copy the abstract Q-values down", done lazily for the keys actually visited.
 """
@@ -23,7 +24,7 @@ import numpy as np
 
 from models.dcb.mirl import GAMMA, LEARNING_RATE
 
-TABLE_BITS = 22
+TABLE_BITS = 20
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 
 
@@ -45,18 +46,17 @@ class CoordinatedQ:
     def __init__(self, n_flights: int, n_states: int, flight_of_entry: np.ndarray, prior: "CoordinatedQ | None" = None,
                  state_map: np.ndarray | None = None, lr: float = LEARNING_RATE, gamma: float = GAMMA):
         self.n_flights, self.n_states, self.flight_of_entry = n_flights, n_states, flight_of_entry
-        self.table = np.zeros(1 << TABLE_BITS, dtype=np.float32)
+        self.table = np.zeros((1 << TABLE_BITS, 4), dtype=np.float32)
         self.prior, self.state_map = prior, state_map
         self.lr, self.gamma = lr, gamma
 
-    def _slots(self, i, j, s_i, s_j, joint_action) -> np.ndarray:
-        key = (((i * self.n_flights + j) * self.n_states + s_i) * self.n_states + s_j) * 4 + joint_action
+    def _rows(self, i, j, s_i, s_j) -> np.ndarray:
+        key = ((i * self.n_flights + j) * self.n_states + s_i) * self.n_states + s_j
         return (key.astype(np.uint64) * _GOLDEN) >> np.uint64(64 - TABLE_BITS)
 
     def edge_q(self, i, j, s_i, s_j) -> np.ndarray:
         """Q_ij(s_ij, ·) for every edge -> [edges, 4], joint action a_ij = 2·a_i + a_j."""
-        a = np.arange(4)
-        q = self.table[self._slots(i[:, None], j[:, None], s_i[:, None], s_j[:, None], a)].astype(np.float64)
+        q = self.table[self._rows(i, j, s_i, s_j)].astype(np.float64)
         if self.prior is not None:
             q += self.prior.edge_q(i, j, self.state_map[s_i], self.state_map[s_j])
         return q
@@ -64,8 +64,9 @@ class CoordinatedQ:
     def values(self, state: np.ndarray, agents: np.ndarray, ev) -> np.ndarray:
         """Q_i(s_i, ·) of the acting agents from their edges (Eq 5.9) -> [agents, 2]."""
         i, j = peer_edges(ev, self.flight_of_entry, self.n_flights)
-        self._edges = (i, j)
-        q = self.edge_q(i, j, state[i], state[j]).reshape(-1, 2, 2)  # [edge, a_i, a_j]
+        q_flat = self.edge_q(i, j, state[i], state[j])
+        self._edges = (i, j, q_flat)  # the update's current Q_ij(s_ij, ·)
+        q = q_flat.reshape(-1, 2, 2)  # [edge, a_i, a_j]
         per_flight = np.zeros((self.n_flights, 2))
         for a in (0, 1):
             per_flight[:, a] = 0.5 * (
@@ -76,14 +77,14 @@ class CoordinatedQ:
 
     def update(self, state, action, reward, next_state, agents) -> None:
         """Eq 5.7 on every edge of the graph the actions were chosen on."""
-        i, j = self._edges
+        i, j, q = self._edges
         if i.size == 0:
             return
         degree = np.bincount(np.concatenate([i, j]), minlength=self.n_flights)
         joint = 2 * action[i] + action[j]
         target = reward[i] / degree[i] + reward[j] / degree[j] + self.gamma * self.edge_q(i, j, next_state[i], next_state[j]).max(axis=1)
-        current = self.edge_q(i, j, state[i], state[j])[np.arange(i.size), joint]
-        np.add.at(self.table, self._slots(i, j, state[i], state[j], joint), (self.lr * (target - current)).astype(np.float32))
+        current = q[np.arange(i.size), joint]
+        np.add.at(self.table, (self._rows(i, j, state[i], state[j]), joint), (self.lr * (target - current)).astype(np.float32))
 
     def transferred(self, n_states: int, state_map: np.ndarray) -> "CoordinatedQ":
         """Ground-level learner whose Q starts at this (abstract) learner's Q(φ(s))."""

@@ -56,7 +56,7 @@ def _so6_rejects(lines: pl.DataFrame, source: str, reason: pl.Expr) -> pl.DataFr
 def read_so6(path: str | Path) -> tuple[pl.DataFrame, pl.DataFrame]:
     """SO6 file -> (segments, rejects). Each line ends in exactly one of the two.
 
-    Rejected reasons: wrong_field_count, bad_number, bad_time, bad_date, time_reversed, out_of_range."""
+    Rejected reasons: wrong_field_count, bad_number, bad_time_or_date, time_reversed, out_of_range."""
     p = Path(path)
     if not p.is_file():
         raise DemandError(f"{p}: no such SO6 file")

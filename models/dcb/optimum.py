@@ -21,7 +21,7 @@ from models.dcb.problem import DCBProblem
 
 
 class InfeasibleError(ValueError):
-    """No delays within MaxDelay resolve every hotspot."""
+    """No delays within MaxDelay resolve every hotspot, or HiGHS did not prove optimality within its time limit."""
 
 
 def solve_optimum(problem: DCBProblem, time_limit_s: float = 300.0) -> tuple[np.ndarray, float]:
@@ -73,17 +73,19 @@ def fcfs(problem: DCBProblem, max_rounds: int = 1000) -> np.ndarray:
     delayed just into the next hour; a flight takes its largest such delay. Delays are not capped
     at MaxDelay. Stops when no hotspot is left."""
     delay = np.zeros(problem.n_flights, dtype=np.int64)
-    flight = problem.entry_flight
+    flight, sector = problem.entry_flight, problem.entry_sector
     for _ in range(max_rounds):
-        key = problem.entry_keys(delay)
+        # keys of its own: uncapped delays can run past the problem's hour grid
         t = problem.entry_min + delay[flight]
+        hour = (t // 60).astype(np.int64)
+        key = sector * (int(hour.max()) + 1) + hour
         order = np.lexsort((t, key))
         ks = key[order]
         rank = np.arange(ks.size) - np.searchsorted(ks, ks, side="left")  # position within its sector-hour
-        late = order[rank >= problem.capacity[ks]]
+        late = order[rank >= problem.sector_capacity[sector[order]]]
         if late.size == 0:
             return delay
-        needed = np.ceil((key[late] % problem.n_hours + 1) * 60 - t[late]).astype(np.int64)
+        needed = np.ceil((hour[late] + 1) * 60 - t[late]).astype(np.int64)
         extra = np.zeros(problem.n_flights, dtype=np.int64)
         np.maximum.at(extra, flight[late], needed)
         delay += extra

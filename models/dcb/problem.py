@@ -79,18 +79,27 @@ class DCBProblem:
         self.entry_min = ((e["entry_ts"] - day0).dt.total_seconds(fractional=True) / 60).to_numpy()
         self.entry_dur_min = ((e["exit_ts"] - e["entry_ts"]).dt.total_seconds(fractional=True) / 60).to_numpy()
         self.n_flights, self.n_sectors = len(self.flight_ids), len(self.sectors)
-        # hours reachable with MaxDelay, plus 3 spare hours for FCFS, whose delays are not capped
-        self.n_hours = int((self.entry_min.max() + max_delay_min) // 60) + 4
-        cap = np.array([capacity_per_h[s] for s in self.sectors], dtype=np.int64)
-        self.capacity = np.repeat(cap, self.n_hours)  # [sector*hour], constant over the day
-        # Entries that can never land in an overloaded sector-hour, whatever the delays in
-        # [0, max_delay], cannot create or sit in a hotspot: learning evaluates only the others
-        # (exact: identical hotspots, h_i and TDC_i; only the counts of never-hot sector-hours differ).
-        k0, k1 = (self.entry_keys(np.full(self.n_flights, d)) for d in (0, max_delay_min))  # an entry reaches k0..k1
-        most = np.bincount(k0, minlength=self.capacity.size) + np.bincount(k1[k1 != k0], minlength=self.capacity.size)
-        self.relevant = np.nonzero((most[k0] > self.capacity[k0]) | (most[k1] > self.capacity[k1]))[0]
+        # the hour grid covers two days (FCFS delays are not capped at MaxDelay) and always one spare
+        # hour after the last reachable one, so that k1 + 1 below stays inside its sector's block
+        self.n_hours = max(int((self.entry_min.max() + max_delay_min) // 60) + 2, 48)
+        self.sector_capacity = np.array([capacity_per_h[s] for s in self.sectors], dtype=np.int64)
+        self.capacity = np.repeat(self.sector_capacity, self.n_hours)  # [sector*hour], constant over the day
+        self.relevant = self._entries_that_can_be_hot()
         cost = flights["aircraft_class"].replace_strict(DELAY_COST_EUR_PER_MIN, return_dtype=pl.Float64).to_numpy()
         self.delay_weight = cost / AVG_DELAY_COST_EUR_PER_MIN  # DC per minute of delay, in average-cost minutes
+
+    def _entries_that_can_be_hot(self) -> np.ndarray:
+        """Entries that can land in a sector-hour that some delays in [0, MaxDelay] overload.
+
+        The others can never create or sit in a hotspot, so learning evaluates only these (exact:
+        identical hotspots, h_i and TDC_i; only the counts of never-hot sector-hours differ). An entry
+        reaches the keys k0..k1 (consecutive hours of one sector); `most` counts, per key, every entry
+        that can reach it, via a difference array."""
+        k0, k1 = (self.entry_keys(np.full(self.n_flights, d)) for d in (0, self.max_delay_min))
+        diff = np.bincount(k0, minlength=self.capacity.size + 1) - np.bincount(k1 + 1, minlength=self.capacity.size + 1)
+        most = np.cumsum(diff)[:-1]
+        over = np.concatenate([[0], np.cumsum(most > self.capacity)])  # over[k]: overloadable keys before k
+        return np.nonzero(over[k1 + 1] - over[k0] > 0)[0]
 
     def entry_keys(self, delay_min: np.ndarray, idx=slice(None)) -> np.ndarray:
         hour = ((self.entry_min[idx] + delay_min[self.entry_flight[idx]]) // 60).astype(np.int64)
@@ -100,6 +109,8 @@ class DCBProblem:
         """Hotspots for a delay vector; `all_entries` also counts entries that can never be in a hotspot."""
         idx = slice(None) if all_entries else self.relevant
         key = self.entry_keys(delay_min, idx)
+        if all_entries and (key % self.n_hours).max() >= self.n_hours - 1:
+            raise ValueError(f"delays of up to {delay_min.max()} min run past the problem's {self.n_hours}-hour grid")
         counts = np.bincount(key, minlength=self.capacity.size)
         hot = counts > self.capacity
         entry_hot = hot[key]
@@ -114,12 +125,12 @@ class DCBProblem:
         return congestion - LAMBDA * self.delay_weight * delay_min
 
 
-def capacities(entries: pl.DataFrame, sectors: pl.DataFrame, scale: float) -> dict[str, int]:
-    """Hourly capacity per sector for one evaluation case.
+def base_capacities(entries: pl.DataFrame, sectors: pl.DataFrame) -> dict[str, int]:
+    """Hourly capacity per sector before case scaling.
 
     A sector's base capacity is its `capacity_per_h` from the sector file or, where none is given,
-    its peak hourly entry count in the undelayed demand (no open capacity data exists); the case
-    scales it: capacity = max(1, floor(scale · base)). Scales < 1 create hotspots."""
+    its peak hourly entry count in the undelayed demand (no open capacity data exists; 1 for a
+    sector no flight enters)."""
     peak = (
         entries.group_by("sector", hour=pl.col("entry_ts").dt.truncate("1h")).len()
         .group_by("sector").agg(peak=pl.col("len").max())
@@ -127,7 +138,12 @@ def capacities(entries: pl.DataFrame, sectors: pl.DataFrame, scale: float) -> di
     base = sectors.select("sector", "capacity_per_h").join(peak, on="sector", how="left").with_columns(
         base=pl.coalesce("capacity_per_h", "peak", pl.lit(1, pl.UInt32).cast(pl.Int64))
     )
-    return {s: max(1, int(np.floor(scale * b + 1e-9))) for s, b in base.select("sector", "base").iter_rows()}
+    return dict(base.select("sector", "base").iter_rows())
+
+
+def scaled_capacities(base: dict[str, int], scale: float) -> dict[str, int]:
+    """One evaluation case: capacity = max(1, floor(scale * base)). Scales < 1 create hotspots."""
+    return {s: max(1, int(np.floor(scale * b + 1e-9))) for s, b in base.items()}
 
 
 def hotspot_table(problem: DCBProblem, delay_min: np.ndarray) -> pl.DataFrame:

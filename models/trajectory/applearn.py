@@ -9,7 +9,7 @@ Algorithm 7 and the saved model, in that order. The equations, as in §6.4:
     μ(π)         = E[Σ_t γᵗ φ(s_t)]          (μ(π_E): mean over the expert flights)                    (6.6, 6.7)
     w            = argmax_{w,t} t  s.t. wᵀμ(π_E) ≥ wᵀμ(π_j) + t for every policy j so far, ‖w‖₂ ≤ 1
                    (the max-margin QP of Abbeel & Ng 2004; a second-order cone program, solved by CLARABEL)
-    DQN          : L(θ) = E[(r + γ (1 - done) max_a' Q_θ⁻(s', a') - Q_θ(s, a))²],   r = R_w(s') + r_aug(s')
+    DQN          : L(θ) = E[(r + γ (1 - done) max_a' Q_θ⁻(s', a') - Q_θ(s, a))²],   r = c · (R_w(s') + r_aug(s'))
 
 r_aug is the reward augmentation of §6.5.2: a large bonus on reaching the destination, a large penalty on
 leaving the box or hitting the step limit. The environment is models.trajectory.heading_env (Eq 6.4).
@@ -58,7 +58,9 @@ class AppLearnParams:
     episodes: int = 15_000
     n_envs: int = 64  # episodes run side by side in the batched environment
     hidden: int = 150  # DQN: one hidden layer of 150 ReLU
-    gamma: float = 0.99  # discount of the DQN
+    # discount of the DQN (the thesis gives none). Expert flights last 200-400 steps: with 0.99 the success
+    # bonus is worth 100·0.99³⁰⁰ ≈ 5 at the start, lost in the step rewards; 0.995 keeps it at ≈ 22.
+    gamma: float = 0.995
     # discount of the feature expectations μ (Eq 6.6-6.7). Episodes end, so γ = 1 is defined; with γ < 1 the
     # first RBF centres of the route dominate μ(π_E) and the learned w pays the agent to dawdle near them.
     feature_gamma: float = 1.0
@@ -73,7 +75,14 @@ class AppLearnParams:
     target_every_episodes: int = 5  # hard target-network update
     irl_every_episodes: int = 100  # a new w from the QP
     success_reward: float = 100.0  # reward augmentation
-    failure_reward: float = -100.0
+    # The penalty must outweigh the discounted sum of step rewards, dominated by the per-step cost w_bias
+    # (|w_bias| ≤ ‖w‖ ≤ 1, so ≤ 1/(1-γ) = 200): with -100, leaving the box early was cheaper than flying on,
+    # and the DQN learnt to do so (0 % success).
+    failure_reward: float = -1000.0
+    # The DQN learns Q / reward_scale: a constant factor leaves the optimal policy unchanged, but the Q-net
+    # starts near 0 and Adam moves its output ~0.1 per step, so at scale 1 the small budgets were spent
+    # growing the output towards the ±1000 of the augmentation (TD loss ~2000, greedy policy worse than random).
+    reward_scale: float = 0.01
     goal_offset_input: bool = True  # see the module docstring
     # "pick a random initial state from T^E": this share of the episodes starts at a random expert point, the
     # rest at an expert's first point. Mid-route starts reach the goal early in training, so the success
@@ -88,7 +97,7 @@ PROFILES = {
     "paper": AppLearnParams(),
     # minutes on 2 cores for all partitions and seeds: fewer, wider batches of episodes, smaller updates
     "demo": AppLearnParams(
-        altitude_epochs=150, episodes=1536, n_envs=256, batch_size=256, buffer_size=100_000,
+        altitude_epochs=150, episodes=768, n_envs=256, batch_size=256, buffer_size=100_000,
         transitions_per_update=128, epsilon_every_episodes=64, irl_every_episodes=128, target_every_episodes=16,
     ),
 }
@@ -204,8 +213,8 @@ class AppLearnModel:
         """Greedy heading index for each observation."""
         return self.q_net(torch.from_numpy(self.q_input(obs))).argmax(dim=1).numpy()
 
-    def env(self, weather: pl.DataFrame, weather_alignment: str = "time_of_day") -> HeadingEnv:
-        return HeadingEnv(self.geometry, self.altitude, weather, weather_alignment)
+    def env(self, weather: pl.DataFrame) -> HeadingEnv:
+        return HeadingEnv(self.geometry, self.altitude, weather)
 
     def to_bytes(self) -> bytes:
         buffer = io.BytesIO()
@@ -248,7 +257,7 @@ def _load_state(path: Path, kind: str) -> dict:
 # ---------------------------------------------------------------------------------- training (Algorithm 7)
 def train_applearn(
     tracks: pl.DataFrame, weather: pl.DataFrame, params: AppLearnParams, seed: int,
-    weather_alignment: str = "time_of_day", log=None,
+    log=None,
 ) -> tuple[AppLearnModel, pl.DataFrame]:
     """Train on the expert flights in `tracks` (tracks_20s rows); returns the model and one row per IRL step."""
     torch.manual_seed(seed)
@@ -265,7 +274,7 @@ def train_applearn(
     target_net = QNetwork(model.n_inputs, n_actions, params.hidden)
     target_net.load_state_dict(q_net.state_dict())
     optimiser = torch.optim.Adam(q_net.parameters(), lr=params.lr)
-    env = model.env(weather, weather_alignment)
+    env = model.env(weather)
     firsts, anywhere = StartStates.first_points(tracks), StartStates.all_points(tracks)
 
     def pick_starts(n: int) -> tuple[StartStates, np.ndarray]:
@@ -352,7 +361,7 @@ def _dqn_update(model, target_net, optimiser, rng, memory_x, memory_x2, memory_a
     x, x2 = torch.from_numpy(memory_x[idx]), torch.from_numpy(memory_x2[idx])
     status = memory_status[idx]
     reward = memory_x2[idx, : model.features.size] @ model.w.astype(np.float32)
-    reward = reward + np.where(status == SUCCESS, p.success_reward, np.where(status != RUNNING, p.failure_reward, 0.0))
+    reward = p.reward_scale * (reward + np.where(status == SUCCESS, p.success_reward, np.where(status != RUNNING, p.failure_reward, 0.0)))
     with torch.no_grad():
         running = torch.from_numpy(status == RUNNING).float()
         target = torch.from_numpy(reward.astype(np.float32)) + p.gamma * running * target_net(x2).max(dim=1).values

@@ -6,7 +6,9 @@ An agent picks one of L_a discrete headings θ_k found from the expert data; the
 
 with Δlon, Δlat the mean absolute step of the expert tracks (θ is measured in that scaled frame: 0 = east,
 90° = north). The altitude comes from a small regression net on (lon, lat) (NN_altitude: 50 ReLU), and the
-weather (temperature, u, v) is interpolated at the new 4D position. An episode ends with success within
+weather (temperature, u, v) is interpolated at the new position from the GAIL environment's WeatherCube (the
+foundation's sample_weather evaluated once on a grid at the experts' median time, read by trilinear
+interpolation: the bundled GFS file has a single time, and a per-step polars lookup dominated the run time). An episode ends with success within
 `goal_radius_km` of the destination, with failure outside the bounding box or after `max_steps` steps.
 
 Everything is a numpy array over the N trajectories of the batch; nothing loops over trajectories.
@@ -18,7 +20,7 @@ import numpy as np
 import polars as pl
 import torch
 
-from models.aviation.weather import sample_weather
+from models.trajectory.env import WeatherCube
 from models.trajectory.metrics import haversine_km, matched_errors
 
 RUNNING, SUCCESS, OUT_OF_BOX, STEP_LIMIT = 0, 1, 2, 3
@@ -46,6 +48,7 @@ class HeadingGeometry:
     goal_radius_km: float = 5.0
     max_steps: int = 2000
     dt_s: float = 20.0
+    weather_time_us: int = 0  # the experts' median time (µs since the epoch): when the weather is read
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -80,7 +83,7 @@ def fit_geometry(
     )
     return HeadingGeometry(
         tuple(float(h) for h in headings), step_lon, step_lat, goal_lon, goal_lat, bbox,
-        goal_radius_km, max_steps, float(steps["dt"].median()),
+        goal_radius_km, max_steps, float(steps["dt"].median()), int(tracks["ts"].dt.epoch("us").median()),
     )
 
 
@@ -185,12 +188,12 @@ class StartStates:
 class HeadingEnv:
     """N flights stepped at once; `obs` rows follow OBS_COLUMNS, `status` holds RUNNING/SUCCESS/OUT_OF_BOX/STEP_LIMIT."""
 
-    def __init__(self, geometry: HeadingGeometry, altitude: AltitudeNet, weather: pl.DataFrame, weather_alignment: str = "time_of_day"):
+    def __init__(self, geometry: HeadingGeometry, altitude: AltitudeNet, weather: pl.DataFrame):
         self.geometry = geometry
         self.altitude = altitude
-        self.weather = crop_weather(weather, geometry.bbox)
-        self.alignment = weather_alignment
         g = geometry
+        lon_min, lon_max, lat_min, lat_max = g.bbox
+        self.weather = WeatherCube(crop_weather(weather, g.bbox), (lon_min, lat_min, lon_max, lat_max), g.weather_time_us)
         self.step_lon = np.cos(g.headings_rad) * g.step_lon_deg  # per action, Eq 6.4
         self.step_lat = np.sin(g.headings_rad) * g.step_lat_deg
         self.n_actions = len(g.headings_rad)
@@ -200,7 +203,6 @@ class HeadingEnv:
         n = len(starts)
         self.lon, self.lat = starts.lon.astype(np.float64).copy(), starts.lat.astype(np.float64).copy()
         self.alt = starts.alt_m.astype(np.float64).copy()
-        self.ts0_us = starts.ts_us.astype(np.int64).copy()
         self.steps = np.zeros(n, dtype=np.int64)
         self.status = np.full(n, RUNNING, dtype=np.int8)
         self.obs = self._observe(np.arange(n))
@@ -208,7 +210,7 @@ class HeadingEnv:
 
     def restart(self, rows: np.ndarray, starts: StartStates) -> np.ndarray:
         """Restart the trajectories at `rows` (finished episodes) from `starts`; returns all observations."""
-        self.lon[rows], self.lat[rows], self.alt[rows], self.ts0_us[rows] = starts.lon, starts.lat, starts.alt_m, starts.ts_us
+        self.lon[rows], self.lat[rows], self.alt[rows] = starts.lon, starts.lat, starts.alt_m
         self.steps[rows] = 0
         self.status[rows] = RUNNING
         self.obs[rows] = self._observe(rows)
@@ -237,9 +239,9 @@ class HeadingEnv:
 
     def _observe(self, rows: np.ndarray) -> np.ndarray:
         elapsed_s = self.steps[rows] * self.geometry.dt_s
-        ts = (self.ts0_us[rows] + (elapsed_s * 1e6).astype(np.int64)).astype("datetime64[us]")
-        w = sample_weather(self.weather, ts, self.lat[rows], self.lon[rows], self.alt[rows], alignment=self.alignment)
-        return np.stack([self.lon[rows], self.lat[rows], self.alt[rows], elapsed_s, *(w[c] for c in WEATHER_COLUMNS)], axis=1)
+        pos = np.stack([self.lon[rows], self.lat[rows], self.alt[rows]], axis=1)
+        met = self.weather(torch.from_numpy(pos)).numpy()
+        return np.concatenate([pos, elapsed_s[:, None], met], axis=1)
 
 
 @dataclass

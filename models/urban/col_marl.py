@@ -10,16 +10,19 @@ is element-wise, so one optimiser over the stack equals one optimiser per agent)
 agents trains in one `bmm`.
 
 Variant "col" is col-MARL (state Eq 4.2, reward Eq 4.3-4.7); "ind" is i-MARL (no collision and density
-terms, reward Eq 3.2-3.3). The environment is models.urban.env.UrbanParallelEnv.
+terms, reward Eq 3.2-3.3). The environment is models.urban.env.UrbanParallelEnv. Variant "ch3" (chapter 3:
+speed actions, DQN + CNN over a collision matrix) plugs its own env and network into the same loop
+(models.urban.cnn_marl, see `kit`).
 """
 
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 import torch
 from torch import nn
 
-from models.urban.env import STATE_DIM, UrbanParallelEnv, route_agent
+from models.urban.env import GOAL_REWARD, STATE_DIM, UrbanParallelEnv, route_agent
 from models.urban.sim import ScenarioFiles
 
 # --- hyperparameters (§4.3.1) ------------------------------------------------------------------
@@ -32,7 +35,10 @@ BUFFER_SIZE = 25_000  # per route agent
 TARGET_EVERY_EPISODES = 5  # hard update of the target networks
 EPSILON_START = 0.9  # decays linearly to 0 ...
 EXPLORATION_FRACTION = 0.8  # ... over this share of the episodes; the rest is pure exploitation
-GRADIENT_STEPS_PER_EPISODE = 10  # the thesis trains "at the end of each episode"; we take 10 steps there
+GRADIENT_STEPS_PER_EPISODE = 10  # the thesis trains "at the end of each episode" without saying how much
+# Q is learnt on rewards / L (same greedy policy): with rewards of ±L = ±100 the tanh net's output layer would
+# need ~1,000 Adam steps at lr 1e-3 just to reach the scale of Q, more than the demo's whole budget
+REWARD_SCALE = 1.0 / GOAL_REWARD
 
 
 class RouteAgentsQ(nn.Module):
@@ -58,6 +64,28 @@ def q_values(params: dict[str, np.ndarray], states: np.ndarray, agent_idx: np.nd
     """Q of each vehicle under its own route agent, numpy (rollout workers need no torch)."""
     h = np.tanh(np.einsum("nd,ndh->nh", states, params["w1"][agent_idx]) + params["b1"][agent_idx])
     return np.einsum("nh,nha->na", h, params["w2"][agent_idx]) + params["b2"][agent_idx]
+
+
+@dataclass(frozen=True)
+class Kit:
+    """What a learner variant plugs into the shared rollout and training loop."""
+
+    network: type  # Q-network class: (n_agents, state_dim, generator), forward [agent, batch, state] -> [agent, batch, action]
+    q_values: Callable  # numpy Q for the rollout workers: (params, states, agent_idx) -> [n, action]
+    state_dim: int
+    env: type  # PettingZoo parallel env: (files, variant, sumo_seed=, record=, leader_guard=)
+    buffer_size: int
+
+
+def kit(variant: str) -> Kit:
+    """col-MARL ("col"), i-MARL ("ind") or chapter 3's DQN + CNN ("ch3", models.urban.cnn_marl)."""
+    if variant == "ch3":
+        from models.urban import cnn_marl  # imports this module: loaded on demand
+
+        return Kit(cnn_marl.RouteAgentsDQNCNN, cnn_marl.q_values, cnn_marl.STATE_DIM, cnn_marl.Ch3Env, cnn_marl.BUFFER_SIZE)
+    if variant not in STATE_DIM:
+        raise ValueError(f"variant {variant!r}: expected one of {sorted([*STATE_DIM, 'ch3'])}")
+    return Kit(RouteAgentsQ, q_values, STATE_DIM[variant], UrbanParallelEnv, BUFFER_SIZE)
 
 
 # --- one episode (runs in a worker process) -------------------------------------------------------
@@ -89,7 +117,9 @@ class EpisodeResult:
 def run_episode(job: EpisodeJob) -> EpisodeResult:
     """Roll out one episode with ε-greedy route agents; returns every vehicle's transitions."""
     rng = np.random.default_rng(job.seed)
-    env = UrbanParallelEnv(job.files, job.variant, sumo_seed=job.seed, record=job.record, leader_guard=job.leader_guard)
+    spec = kit(job.variant)
+    env = spec.env(job.files, job.variant, sumo_seed=job.seed, record=job.record, leader_guard=job.leader_guard)
+    n_actions = env.action_space(None).n
     index = {a: i for i, a in enumerate(job.agents)}
     buf = {k: [] for k in ("agent_idx", "state", "action", "reward", "next_state", "done")}
     returns = np.zeros(len(job.agents))
@@ -99,9 +129,9 @@ def run_episode(job: EpisodeJob) -> EpisodeResult:
             ids = list(env.agents)
             states = np.stack([obs[v] for v in ids])
             agent_idx = np.array([index[route_agent(v)] for v in ids])
-            greedy = q_values(job.params, states, agent_idx).argmax(axis=1)
+            greedy = spec.q_values(job.params, states, agent_idx).argmax(axis=1)
             explore = rng.random(len(ids)) < job.epsilon
-            action = np.where(explore, rng.integers(0, N_ACTIONS, len(ids)), greedy)
+            action = np.where(explore, rng.integers(0, n_actions, len(ids)), greedy)
             obs, rewards, terminated, truncated, _ = env.step(dict(zip(ids, action.tolist())))
             r = np.array([rewards.get(v, 0.0) for v in ids])
             buf["agent_idx"].append(agent_idx)
@@ -128,8 +158,9 @@ def run_episode(job: EpisodeJob) -> EpisodeResult:
 class ReplayBuffers:
     """One ring buffer per route agent, stored as [agent, slot, ...] arrays."""
 
-    def __init__(self, n_agents: int, state_dim: int):
-        self.state = np.zeros((n_agents, BUFFER_SIZE, state_dim), np.float32)
+    def __init__(self, n_agents: int, state_dim: int, size: int = BUFFER_SIZE):
+        self.capacity = size
+        self.state = np.zeros((n_agents, size, state_dim), np.float32)
         self.next_state = np.zeros_like(self.state)
         self.action = np.zeros((n_agents, BUFFER_SIZE), np.int64)
         self.reward = np.zeros((n_agents, BUFFER_SIZE), np.float32)
@@ -141,11 +172,11 @@ class ReplayBuffers:
         for k in np.unique(t["agent_idx"]):
             sel = t["agent_idx"] == k
             n = int(sel.sum())
-            slots = (self.head[k] + np.arange(n)) % BUFFER_SIZE
+            slots = (self.head[k] + np.arange(n)) % self.capacity
             self.state[k, slots], self.next_state[k, slots] = t["state"][sel], t["next_state"][sel]
-            self.action[k, slots], self.reward[k, slots], self.done[k, slots] = t["action"][sel], t["reward"][sel], t["done"][sel]
-            self.head[k] = (self.head[k] + n) % BUFFER_SIZE
-            self.size[k] = min(self.size[k] + n, BUFFER_SIZE)
+            self.action[k, slots], self.reward[k, slots], self.done[k, slots] = t["action"][sel], t["reward"][sel] * REWARD_SCALE, t["done"][sel]
+            self.head[k] = (self.head[k] + n) % self.capacity
+            self.size[k] = min(self.size[k] + n, self.capacity)
 
     def sample(self, rng: np.random.Generator, batch: int):
         """`batch` transitions of every agent (drawn with replacement); agents with an empty buffer are masked."""
@@ -196,11 +227,11 @@ def train(
     torch.manual_seed(seed)
     gen = torch.Generator().manual_seed(seed)
     rng = np.random.default_rng(seed)
-    dim = STATE_DIM[variant]
-    q, target = RouteAgentsQ(len(agents), dim, gen), RouteAgentsQ(len(agents), dim, gen)
+    spec = kit(variant)
+    q, target = spec.network(len(agents), spec.state_dim, gen), spec.network(len(agents), spec.state_dim, gen)
     target.load_state_dict(q.state_dict())
     optimiser = torch.optim.Adam(q.parameters(), lr=LEARNING_RATE)
-    buffers = ReplayBuffers(len(agents), dim)
+    buffers = ReplayBuffers(len(agents), spec.state_dim, spec.buffer_size)
     rows: list[dict] = []
     workers = getattr(run_parallel, "workers", 1)
     episode = 0

@@ -36,10 +36,11 @@ from pettingzoo import ParallelEnv
 from models.urban.scenarios import ACTIONS_MPS2
 from models.urban.sim import ACTION_S, SPEED_MODE_FREE, SPEED_MODE_LEADER_GUARD, ScenarioFiles, Simulation
 
-GOAL_REWARD = 100.0  # L of Eq 4.3 (not given; the thesis found the method insensitive to it); must outweigh c2 per step
+GOAL_REWARD = 1000.0  # L of Eq 4.3 (not given; "not sensitive"): one step of delay must cost more (γ L ≈ 10) than Eq 4.6 saves (c2 + f(v) ≤ 6)
 SAFE_DIST_M = 20.0  # safe_dist of Eq 4.5-4.7
 C1, C2, C3 = 0.2, 5.0, 0.4  # Eq 4.5, 4.6, 4.7
 BETA1, BETA2 = 3.0, 1.0  # Eq 3.2, 3.3 (i-MARL)
+MIN_FVEH_DIST_M = 1.0  # floor of fveh_dist in f(d) (Eq 4.5, 4.7; undefined at 0): one near step costs at most ~0.3 L
 INTER_TIME_S = 1.5  # two vehicles reaching a junction closer in time than this are predicted to collide
 POS_SCALE_M, LEADER_SCALE_M = 200.0, 200.0
 STATE_DIM = {"col": 6, "ind": 4}
@@ -65,7 +66,7 @@ def reward(variant: str, speed: np.ndarray, vmax: float, fveh_dist: np.ndarray, 
     near = (fveh_dist >= 0) & (fveh_dist < SAFE_DIST_M)
     if variant == "ind":
         return np.where(near, -(BETA2 + fv) * (SAFE_DIST_M - fveh_dist), BETA1 * fv)  # Eq 3.2, 3.3 with C = 1
-    fd = SAFE_DIST_M / np.maximum(np.minimum(fveh_dist, SAFE_DIST_M), 0.1)
+    fd = SAFE_DIST_M / np.maximum(np.minimum(fveh_dist, SAFE_DIST_M), MIN_FVEH_DIST_M)
     return np.where(
         col_term > 0,
         np.where(near, -(C3 + fv) * fd, -(C2 + fv)),  # Eq 4.7, 4.6
@@ -112,26 +113,18 @@ class UrbanParallelEnv(ParallelEnv):
         self.close()
         self.sim = Simulation(self.files, model="IDM", seed=self.sumo_seed if seed is None else seed, speed_mode=self.speed_mode)
         self.sim.start()
-        self.agents, self.frames, self.finished, obs = [], [], set(), {}
-        while not obs and not self.sim.done:
-            self.sim.advance(ACTION_S)
-            obs, _, _ = self._observe()
+        self.agents, self.frames, self.finished = [], [], set()
+        obs = self._wait_for_agents()
         self.agents = list(obs)
         return obs, {a: {"route_agent": route_agent(a)} for a in self.agents}
 
     def step(self, actions: dict):
-        ls, sim = self.sim.ls, self.sim
+        sim = self.sim
         ids = [a for a in self.agents if a in actions]
         if ids:
             snap = self._last
             row = {v: i for i, v in enumerate(snap.ids)}
-            speed = snap.speed[[row[v] for v in ids]]
-            table = np.array([ACTIONS_MPS2["car" if ".car." in v else "heavy"] for v in ids])
-            accel = table[np.arange(len(ids)), np.array([int(actions[v]) for v in ids])]
-            # speed mode 32 follows orders beyond the limits: keep 0 <= v <= vel_max over the held second
-            accel = np.clip(accel, -speed / ACTION_S, (self.vmax - speed) / ACTION_S)
-            for v, a in zip(ids, accel):
-                ls.vehicle.setAcceleration(v, float(a), ACTION_S)
+            self._apply(ids, np.array([int(actions[v]) for v in ids]), snap.speed[[row[v] for v in ids]])
         previous = self.agents
         sim.advance(ACTION_S)
         obs, rewards, goal = self._observe()
@@ -139,18 +132,36 @@ class UrbanParallelEnv(ParallelEnv):
         for v in previous:
             if v in sim.new_collisions or v in sim.new_teleports:
                 rewards[v], terminated[v] = -GOAL_REWARD, True
-                obs.setdefault(v, np.zeros(STATE_DIM[self.variant], np.float32))
+                obs.setdefault(v, np.zeros(self._obs_space.shape, np.float32))
             elif v not in obs or v in goal:  # crossed its last junction (or arrived within the second)
                 rewards[v], terminated[v] = GOAL_REWARD, True
-                obs.setdefault(v, np.zeros(STATE_DIM[self.variant], np.float32))
+                obs.setdefault(v, np.zeros(self._obs_space.shape, np.float32))
         self.finished |= sim.new_collisions | sim.new_teleports
         sim.new_collisions, sim.new_teleports = set(), set()
         terminated = {v: terminated.get(v, False) for v in obs}
-        done = sim.done
-        truncated = {v: done and not terminated[v] for v in obs}
+        truncated = {v: sim.done and not terminated[v] for v in obs}
         self.agents = [v for v in obs if not terminated[v] and not truncated[v]]
+        if not self.agents:  # nobody to drive right now, but vehicles may still come or be on their last road
+            new = self._wait_for_agents()
+            obs |= new
+            terminated |= {v: False for v in new}
+            truncated |= {v: sim.done for v in new}
+            self.agents = [] if sim.done else list(new)
         infos = {v: {"route_agent": route_agent(v)} for v in obs}
         return obs, rewards, terminated, truncated, infos
+
+    def _wait_for_agents(self) -> dict:
+        """Simulate until some vehicle needs a decision or the episode is over (PettingZoo ends an episode
+        as soon as it has no agents: without this, a gap in the traffic or the last vehicles driving their
+        last road would end it early and never arrive); returns the new agents' observations."""
+        sim, obs = self.sim, {}
+        while not obs and not sim.done:
+            sim.advance(ACTION_S)
+            obs, _, goal = self._observe()
+            obs = {v: o for v, o in obs.items() if v not in goal}
+            self.finished |= sim.new_collisions | sim.new_teleports
+            sim.new_collisions, sim.new_teleports = set(), set()
+        return obs
 
     def _observe(self):
         """State and reward of every vehicle on the road; hands vehicles past their last junction to the fixed rule."""
@@ -170,16 +181,7 @@ class UrbanParallelEnv(ParallelEnv):
         last_road = (snap.route_index >= n_edges - 1) & ~internal
         junction[last_road] = -1
         dist = np.where(internal, 0.0, np.maximum(snap.lane_len - snap.lane_pos, 0.0))
-        col_term, density = junction_terms(junction, road_code, dist, snap.speed, idx.incoming_lanes)
-        state = np.column_stack([
-            snap.speed / self.vmax,
-            dist / POS_SCALE_M,
-            np.where(snap.leader_dist >= 0, snap.leader_dist / LEADER_SCALE_M, -1.0),
-            np.where(snap.leader_speed >= 0, snap.leader_speed / self.vmax, -1.0),
-            col_term,
-            density,
-        ])[:, : STATE_DIM[self.variant]].astype(np.float32)
-        r = reward(self.variant, snap.speed, self.vmax, snap.leader_dist, col_term)
+        state, r = self._state_reward(snap, junction, road_code, dist)
         goal = set()
         for i in np.flatnonzero(last_road):
             v = snap.ids[i]
@@ -192,6 +194,30 @@ class UrbanParallelEnv(ParallelEnv):
         obs = {snap.ids[i]: state[i] for i in keep}
         rewards = {snap.ids[i]: float(r[i]) for i in keep}
         return obs, rewards, goal
+
+    def _apply(self, ids: list, action: np.ndarray, speed: np.ndarray) -> None:
+        """Table 4.1: the chosen acceleration, held for the next second."""
+        table = np.array([ACTIONS_MPS2["car" if ".car." in v else "heavy"] for v in ids])
+        accel = table[np.arange(len(ids)), action]
+        # speed mode 32 follows orders beyond the limits: keep 0 <= v <= vel_max over the held second
+        accel = np.clip(accel, -speed / ACTION_S, (self.vmax - speed) / ACTION_S)
+        for v, a in zip(ids, accel):
+            self.sim.ls.vehicle.setAcceleration(v, float(a), ACTION_S)
+
+    def individual_state(self, snap, dist: np.ndarray) -> np.ndarray:
+        """[vel / vel_max, pos / 200 m, fveh_dist / 200 m, fveh_vel / vel_max] (-1: no front vehicle)."""
+        return np.column_stack([
+            snap.speed / self.vmax,
+            dist / POS_SCALE_M,
+            np.where(snap.leader_dist >= 0, snap.leader_dist / LEADER_SCALE_M, -1.0),
+            np.where(snap.leader_speed >= 0, snap.leader_speed / self.vmax, -1.0),
+        ])
+
+    def _state_reward(self, snap, junction: np.ndarray, road_code: np.ndarray, dist: np.ndarray):
+        """State (Eq 4.2; i-MARL: its first 4 terms) and non-terminal reward of every vehicle."""
+        col_term, density = junction_terms(junction, road_code, dist, snap.speed, self.sim.index.incoming_lanes)
+        state = np.column_stack([self.individual_state(snap, dist), col_term, density])[:, : STATE_DIM[self.variant]]
+        return state.astype(np.float32), reward(self.variant, snap.speed, self.vmax, snap.leader_dist, col_term)
 
     def close(self):
         if self.sim is not None:

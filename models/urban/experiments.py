@@ -18,7 +18,7 @@ from models.urban.sim import ScenarioFiles
 
 REPO = Path(__file__).resolve().parents[2]
 REAL_NET = REPO / "data" / "sumo" / "bologna_acosta.net.xml.gz"
-METHODS_RL = {"col_marl": "col", "i_marl": "ind"}
+METHODS_RL = {"col_marl": "col", "i_marl": "ind", "ch3_dqn_cnn": "ch3"}  # method -> models.urban.col_marl variant
 METHODS_SUMO = {"idm": "IDM", "krauss": "Krauss"}
 
 
@@ -158,7 +158,7 @@ def route_agents(routes: pl.DataFrame, network: str) -> list[str]:
 # --- thesis tables ---------------------------------------------------------------------------------
 
 TABLE_METHODS = {
-    "3.2": ("col_marl", "krauss", "idm"),
+    "3.2": ("ch3_dqn_cnn", "krauss", "idm"),  # chapter 3's method
     "4.3": ("col_marl", "i_marl", "idm"),
     "4.4": ("col_marl", "idm"),
     "4.5": ("col_marl", "idm"),

@@ -7,7 +7,7 @@ import polars as pl
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-METHOD_COLORS = {"col_marl": "#1f77b4", "i_marl": "#ff7f0e", "idm": "#2ca02c", "krauss": "#d62728"}
+METHOD_COLORS = {"col_marl": "#1f77b4", "i_marl": "#ff7f0e", "idm": "#2ca02c", "krauss": "#d62728", "ch3_dqn_cnn": "#9467bd"}
 BIN_M = 10.0
 
 

@@ -43,6 +43,7 @@ VEHICLE_TYPES = {
 MIX = {"car": 0.75, "bus": 0.15, "truck": 0.10}  # §4.3.3
 LS_PERIOD_S = {"car": 4.0, "bus": 10.0, "truck": 15.0}  # LS_const: one car / bus / truck every 4 / 10 / 15 s
 ENTRY_SPEED_MPS = 10.0  # §4.3.1
+MIN_GAP_M = 2.5  # SUMO's standstill gap, written into every vType (the env adds it back to getLeader's distance)
 DRIVER_MODELS = ("IDM", "Krauss")
 
 
@@ -90,7 +91,7 @@ def vtypes_xml(model: str, max_speed_mps: float) -> str:
         raise ValueError(f"driver model {model!r}: expected one of {DRIVER_MODELS}")
     rows = [
         f'  <vType id="{t.name}" vClass="passenger" guiShape="{ {"car": "passenger", "bus": "bus", "truck": "truck"}[t.name] }" '
-        f'length="{t.length_m}" accel="{t.accel_mps2}" decel="{t.decel_mps2}" emergencyDecel="9" '
+        f'length="{t.length_m}" minGap="{MIN_GAP_M}" accel="{t.accel_mps2}" decel="{t.decel_mps2}" emergencyDecel="9" '
         f'maxSpeed="{max_speed_mps}" speedDev="0" sigma="0" carFollowModel="{model}" emissionClass="{t.emission_class}"/>\n'
         for t in VEHICLE_TYPES.values()
     ]

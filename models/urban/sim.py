@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from models.urban.network import UrbanInputError, read_net
-from models.urban.scenarios import VEHICLE_TYPES
+from models.urban.scenarios import MIN_GAP_M, VEHICLE_TYPES
 
 STEP_S = 0.2
 ACTION_S = 1.0
@@ -68,13 +68,14 @@ class Snapshot:
     speed: np.ndarray
     lane_pos: np.ndarray
     lane_len: np.ndarray
+    lane: list
     road: list
     route_index: np.ndarray
     x: np.ndarray
     y: np.ndarray
     accel: np.ndarray
     fuel_mgps: np.ndarray
-    leader_dist: np.ndarray  # -1 if no leader within LEADER_LOOKAHEAD_M
+    leader_dist: np.ndarray  # bumper-to-bumper gap (m, >= 0); -1 if no leader within LEADER_LOOKAHEAD_M
     leader_speed: np.ndarray  # -1 if no leader
 
 
@@ -135,6 +136,9 @@ class Simulation:
             for v in ls.simulation.getDepartedIDList():
                 if self.speed_mode is not None:
                     ls.vehicle.setSpeedMode(v, self.speed_mode)
+                    # keep the entry speed until its first decision: uncommanded, speed mode 32 would let SUMO's
+                    # car-following model accelerate without its safe-speed check
+                    ls.vehicle.setAcceleration(v, 0.0, ACTION_S)
                 tally.depart[v] = t - self.step_s
                 departed.append(v)
             for col in ls.simulation.getCollisions():
@@ -161,9 +165,11 @@ class Simulation:
         ids = list(veh.getIDList())
         leaders = [veh.getLeader(v, LEADER_LOOKAHEAD_M) for v in ids]
         vals = [(veh.getLaneID(v), veh.getRoadID(v), ld[0] if ld and ld[0] else "") for v, ld in zip(ids, leaders)]
+        # getLeader's distance excludes the follower's minGap: add it back so the gap is bumper to bumper
+        # (otherwise a leader closer than minGap would read as negative, i.e. as "no leader")
         num = np.array(
             [(veh.getSpeed(v), veh.getLanePosition(v), veh.getRouteIndex(v), *veh.getPosition(v), veh.getAcceleration(v),
-              veh.getFuelConsumption(v), ld[1] if ld and ld[0] else -1.0) for v, ld in zip(ids, leaders)],
+              veh.getFuelConsumption(v), max(ld[1] + MIN_GAP_M, 0.0) if ld and ld[0] else -1.0) for v, ld in zip(ids, leaders)],
             float,
         ).reshape(-1, 8)
         # vehicles being teleported are off the network (speed = SUMO's invalid value): left out
@@ -179,6 +185,7 @@ class Simulation:
             speed=num[:, 0],
             lane_pos=num[:, 1],
             lane_len=np.array([self.index.lane_length.get(r[0], 0.0) for r in vals]),
+            lane=[r[0] for r in vals],
             road=[r[1] for r in vals],
             route_index=num[:, 2].astype(int),
             x=num[:, 3],

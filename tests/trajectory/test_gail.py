@@ -1,40 +1,25 @@
 """Trajectory imitation on a real subset: metrics, environment, BC/GAIL learning, reload, determinism, CLI errors."""
 
-from pathlib import Path
 
 import numpy as np
 import polars as pl
 import pytest
 import torch
 
-from models.aviation.airports import flights_table
-from models.aviation.ingest import ingest
-from models.aviation.modes import trajectory_modes
-from models.aviation.phases import assign_phases
-from models.aviation.resample import resample
-from models.aviation.split import split_flights
-from models.aviation.weather import read_weather
 from models.trajectory.evaluate import evaluate_model, metrics_table
 from models.trajectory.metrics import matched_errors
 from models.trajectory.model import TrajectoryModel, TrajectoryModelError
 from models.trajectory.predict import PredictionInputError, main, predict_flights, read_first_states
 from models.trajectory.training import Budget, prepare, random_policy_like, train_model
 
-REPO = Path(__file__).resolve().parents[2]
-OPENSKY = REPO / "data" / "opensky" / "kaliningrad_2022-02-22_2022-03-05.parquet"
-GFS = REPO / "data" / "weather" / "gfs_2011_isobaric_t_u_v.grib2"
 torch.set_num_threads(1)
 
 
 @pytest.fixture(scope="module")
-def setup():
-    """The real pipeline on the bundled data: ingest -> 20 s tracks -> phases -> modes -> split -> demonstrations."""
-    tracks, _, _ = ingest(OPENSKY)
-    flights = flights_table(tracks)
-    tracks20 = assign_phases(resample(tracks), flights)
-    modes, _ = trajectory_modes(tracks20, flights)
-    splits = split_flights(flights, modes)
-    return prepare(tracks20, modes, flights, splits, read_weather(GFS), 20.0), tracks20
+def setup(aviation_tables):
+    """The real pipeline on the bundled data: the foundation's tables -> demonstrations."""
+    tracks20, modes, flights, splits, weather = aviation_tables
+    return prepare(tracks20, modes, flights, splits, weather, 20.0), tracks20
 
 
 @pytest.fixture(scope="module")

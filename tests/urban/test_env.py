@@ -8,6 +8,7 @@ from models.urban.env import GOAL_REWARD, UrbanParallelEnv, junction_terms, rewa
 from models.urban.network import UrbanInputError
 from models.urban.sim import ScenarioFiles, Simulation, run_sumo_model
 
+from models.urban.scenarios import vtypes_xml
 from urban_fixtures import crossing_copy, make_copy
 
 HOLD = 2  # index of the zero acceleration in Table 4.1
@@ -74,3 +75,42 @@ def test_bad_route_file_gives_one_clear_line(tmp_path, sc1_net):
         sim.start()
     with pytest.raises(UrbanInputError, match="scenario file not found"):
         Simulation(ScenarioFiles(files.net, str(tmp_path / "none.rou.xml"), files.folder, 0.0, 40.0))
+
+
+def _same_route_copy(folder, net, departs):
+    """Cars on one straight route of Sc1 departing at `departs` (s)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    cars = "".join(f'  <vehicle id="r000.car.{i}" type="car" route="r000" depart="{t}" departSpeed="10" departPos="base"/>\n'
+                   for i, t in enumerate(departs))
+    (folder / "routes.rou.xml").write_text(f'<routes>\n  <route id="r000" edges="left0A0 A0right0"/>\n{cars}</routes>\n')
+    for model in ("IDM", "Krauss"):
+        (folder / f"vtypes_{model.lower()}.add.xml").write_text(vtypes_xml(model, 40.0))
+    return ScenarioFiles(str(net), str(folder / "routes.rou.xml"), str(folder), float(max(departs)), 40.0)
+
+
+def test_front_gap_is_bumper_to_bumper_down_to_contact(tmp_path, sc1_net):
+    # the leader holds 10 m/s, its follower accelerates into it: the gap must read as a gap (>= 0) all the way down,
+    # not as "no front vehicle" once it is below SUMO's minGap (getLeader's distance excludes it)
+    env = UrbanParallelEnv(_same_route_copy(tmp_path / "follow", sc1_net, [0, 2]))
+    obs, _ = env.reset(seed=0)
+    gaps = []
+    while env.agents:
+        obs, *_ = env.step({a: HOLD if a.endswith(".0") else 4 for a in env.agents})
+        follower = obs.get("r000.car.1")
+        if follower is not None and follower[3] >= 0:  # it has a front vehicle
+            gaps.append(follower[2] * 200.0)
+    tally = env.sim.tally
+    env.close()
+    assert tally.collision_types == {"collision": 1}  # rear-end
+    assert min(gaps) >= 0.0 and min(gaps) < 2.5
+
+
+def test_a_gap_in_traffic_does_not_end_the_episode(tmp_path, sc1_net):
+    # one car every 40 s: between them nobody is a PettingZoo agent, yet every car must be simulated to its exit
+    env = UrbanParallelEnv(_same_route_copy(tmp_path / "sparse", sc1_net, [0, 40, 80]))
+    env.reset(seed=0)
+    while env.agents:
+        env.step({a: 4 for a in env.agents})
+    metrics = env.sim.metrics(3)
+    env.close()
+    assert metrics["arrived"] == 3 and metrics["success"]

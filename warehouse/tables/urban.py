@@ -6,8 +6,8 @@ from warehouse.table import Table, col
 
 _SCENARIO = col("scenario", pa.string(), "", "scenario name, e.g. sc1, sc4_x3 (knowledge reuse copy), real_mr")
 _COPY = col("copy", pa.int64(), "", "seeded copy of the scenario (0-based)")
-_METHOD = col("method", pa.string(), "", "col_marl, i_marl, idm or krauss")
-_SEED = col("seed", pa.int64(), "", "training seed of the policy (col_marl, i_marl) or SUMO seed (idm, krauss)")
+_METHOD = col("method", pa.string(), "", "col_marl, i_marl, ch3_dqn_cnn (chapter 3), idm or krauss")
+_SEED = col("seed", pa.int64(), "", "training seed of the policy (col_marl, i_marl, ch3_dqn_cnn) or SUMO seed (idm, krauss)")
 _AGENT = col("agent", pa.string(), "", "route agent: <route_id>:<car|heavy> (buses and trucks share the heavy agent)")
 
 TABLES: list[Table] = [

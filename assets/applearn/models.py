@@ -1,0 +1,67 @@
+"""AppLearn (inverse RL, Alg 7) and the SVM behavioural-cloning baseline under the Table 6.1 protocol.
+
+tracks_20s, trajectory_modes, weather -> applearn_models (catalogue + model files), applearn_results
+"""
+
+import time
+
+import dagster as dg
+import polars as pl
+from pydantic import Field
+
+from assets.profiles import default_profile
+
+# Profile defaults for the protocol; the learner's own budgets are models.trajectory.applearn.PROFILES.
+PROTOCOL = {
+    # demo: the two largest clusters (both UUEE-UMKK modes), like the thesis's two BCN-MAD clusters
+    "demo": {"seeds": [0, 1, 2, 3, 4], "partitions": ["P1", "P2", "P3", "P4"], "min_flights": 25},
+    "paper": {"seeds": list(range(10)), "partitions": ["P1", "P2", "P3", "P4"], "min_flights": 20},
+}
+
+
+class AppLearnConfig(dg.Config):
+    profile: str = Field(default_factory=default_profile, description="demo (minutes on 2 cores) or paper (thesis budgets)")
+    seeds: list[int] | None = Field(default=None, description="seeds of the partition draws and training [demo 0-4, paper 0-9]")
+    partitions: list[str] | None = Field(default=None, description="Table 6.1 partitions [P1-P4]")
+    min_flights: int | None = Field(default=None, description="datasets = whole-flight clusters with at least this many flights [demo 25, paper 20]")
+    episodes: int | None = Field(default=None, description="DQN training episodes [demo 768, paper 15000]")
+
+
+@dg.multi_asset(
+    group_name="trajectory",
+    outs={
+        "applearn_models": dg.AssetOut(description="Trained AppLearn models per dataset, partition and seed; one model file each."),
+        "applearn_results": dg.AssetOut(description="Success rate and DTW-matched RMSE of AppLearn and SVM BC on held-out flights (Table 6.1)."),
+    },
+)
+def applearn_experiments(context: dg.AssetExecutionContext, config: AppLearnConfig, tracks_20s: pl.DataFrame,
+                         trajectory_modes: pl.DataFrame, weather: pl.DataFrame):
+    import torch
+
+    from models.trajectory.applearn import demo_or_paper
+    from models.trajectory.applearn_eval import datasets, run_partition, table_6_1
+    from models.trajectory.report import markdown_table
+    from warehouse.artifacts import artifact_path, write_bytes_atomic
+
+    if config.profile not in PROTOCOL:
+        raise ValueError(f"profile must be one of {', '.join(PROTOCOL)}, got '{config.profile}'")
+    torch.set_num_threads(1)  # small nets: more threads only add overhead
+    protocol = {k: getattr(config, k) if getattr(config, k) is not None else v for k, v in PROTOCOL[config.profile].items()}
+    params = demo_or_paper(config.profile, episodes=config.episodes)
+    sets = datasets(tracks_20s, trajectory_modes, protocol["min_flights"])
+    todo = [(d, p, s) for d in sets for p in protocol["partitions"] for s in protocol["seeds"]]
+    context.log.info(f"{len(todo)} runs: datasets {list(sets)}, {protocol}, {params.episodes} episodes each")
+    models, results, t0 = [], [], time.perf_counter()
+    for k, (name, partition, seed) in enumerate(todo, 1):
+        model, row, res = run_partition(sets[name], weather, partition, seed, params)
+        path = write_bytes_atomic(artifact_path("models/applearn", f"{name.replace('/', '_mode')}_{partition}_seed{seed}.pt"), model.to_bytes())
+        models.append({"dataset": name, **row, "profile": config.profile, "path": str(path)})
+        results += [{"dataset": name, **r} for r in res]
+        a, b = res
+        context.log.info(f"[{k}/{len(todo)}] {name} {partition} seed {seed}: {row['train_s']:.0f} s; success AppLearn "
+                         f"{a['success_rate']:.2f} / SVM {b['success_rate']:.2f}, RMSE {a['rmse_3d_km']:.1f} / {b['rmse_3d_km']:.1f} km")
+    results = pl.DataFrame(results)
+    meta = {"runs": len(todo), "seconds": round(time.perf_counter() - t0, 1), "profile": config.profile,
+            "table_6_1": dg.MetadataValue.md(markdown_table(table_6_1(results)))}
+    return dg.Output(pl.DataFrame(models), output_name="applearn_models", metadata={"runs": len(todo)}), \
+        dg.Output(results, output_name="applearn_results", metadata=meta)

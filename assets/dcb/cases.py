@@ -1,0 +1,68 @@
+"""Evaluation cases (capacity scalings, like thesis Table 5.1), their hotspots, and the reference solutions."""
+
+import time
+
+import dagster as dg
+import polars as pl
+from pydantic import Field
+
+from assets.profiles import default_profile
+from models.dcb.experiment import build_problem, case_name, case_row, delay_rows, hotspots_before
+from models.dcb.optimum import InfeasibleError, fcfs, solve_optimum
+
+# capacity scales of the evaluation cases, easiest first (the demo runs the easiest only)
+PROFILE_SCALES = {"demo": [0.95], "paper": [0.95, 0.9, 0.85, 0.8]}
+
+
+class CasesConfig(dg.Config):
+    profile: str = Field(default=default_profile(), description="demo: case cap95 only; paper: cap95, cap90, cap85, cap80")
+    capacity_scales: list[float] | None = Field(default=None, description="capacity scale per case (None: the profile's)")
+    max_delay_min: int = Field(default=60, description="MaxDelay: the largest ground delay a learner may give [min]")
+
+
+def problems(cases: pl.DataFrame, entries: pl.DataFrame, sectors: pl.DataFrame, flights: pl.DataFrame) -> dict:
+    """case -> DCBProblem, rebuilt from the tables (deterministic)."""
+    return {r["case"]: build_problem(entries, sectors, flights, r["capacity_scale"], r["max_delay_min"]) for r in cases.iter_rows(named=True)}
+
+
+@dg.multi_asset(
+    group_name="dcb",
+    outs={"dcb_cases": dg.AssetOut(description="Evaluation cases described like Table 5.1."),
+          "dcb_hotspots": dg.AssetOut(description="Hotspots of every case before any delay.")},
+)
+def dcb_cases(context: dg.AssetExecutionContext, config: CasesConfig, dcb_sector_entries: pl.DataFrame, dcb_sectors: pl.DataFrame,
+              dcb_flights: pl.DataFrame):
+    rows, hot = [], []
+    for scale in config.capacity_scales or PROFILE_SCALES[config.profile]:
+        problem = build_problem(dcb_sector_entries, dcb_sectors, dcb_flights, scale, config.max_delay_min)
+        rows.append(case_row(case_name(scale), scale, problem))
+        hot.append(hotspots_before(case_name(scale), problem))
+        context.log.info(f"case {rows[-1]}")
+    cases = pl.DataFrame(rows)
+    return (dg.Output(cases, metadata={"cases": dg.MetadataValue.json(rows)}),
+            dg.Output(pl.concat(hot), metadata={"hotspots": dg.MetadataValue.json(dict(cases.select("case", "hotspots").iter_rows()))}))
+
+
+class ReferenceConfig(dg.Config):
+    time_limit_s: float = Field(default=300.0, description="HiGHS time limit per case [s]; a case not solved to optimality gets no optimum row")
+
+
+@dg.asset(group_name="dcb", description="Exact minimum-total-delay solution (integer program, HiGHS) and FCFS ground delays per case.")
+def dcb_reference(context: dg.AssetExecutionContext, config: ReferenceConfig, dcb_cases: pl.DataFrame, dcb_sector_entries: pl.DataFrame,
+                  dcb_sectors: pl.DataFrame, dcb_flights: pl.DataFrame) -> dg.Output:
+    frames, solve = [], {}
+    for case, problem in problems(dcb_cases, dcb_sector_entries, dcb_sectors, dcb_flights).items():
+        started = time.perf_counter()
+        first_come = fcfs(problem)
+        frames.append(delay_rows(case, "FCFS", 0, problem, first_come, time.perf_counter() - started))
+        solve[case] = {"fcfs_total_delay_min": int(first_come.sum())}
+        try:
+            delay, solve_s = solve_optimum(problem, config.time_limit_s)
+        except InfeasibleError as e:  # the case stays usable: learners still run, gaps are null
+            context.log.warning(f"{case}: no optimum - {e}")
+            solve[case]["optimum"] = str(e)
+            continue
+        frames.append(delay_rows(case, "optimum", 0, problem, delay, solve_s))
+        solve[case].update(optimum_total_delay_min=int(delay.sum()), solve_s=round(solve_s, 2))
+        context.log.info(f"{case}: {solve[case]}")
+    return dg.Output(pl.concat(frames), metadata={"per_case": dg.MetadataValue.json(solve)})

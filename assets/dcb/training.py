@@ -1,0 +1,41 @@
+"""Every learner (MIRL, CMARL, HCMARL, stHMIRL, sHMIRL, tHMIRL) on every case and seed -> delays per flight."""
+
+import dagster as dg
+import polars as pl
+from pydantic import Field
+
+from assets.dcb.cases import problems
+from assets.profiles import default_profile
+from models.dcb.experiment import delay_rows
+from models.dcb.train import METHODS, train
+
+# per profile: episodes per abstraction level and seeds; the thesis trains 15,000 episodes per level, 10 seeds
+PROFILE = {"demo": {"episodes": 200, "seeds": [0, 1, 2]}, "paper": {"episodes": 15000, "seeds": list(range(10))}}
+
+
+class TrainingConfig(dg.Config):
+    profile: str = Field(default=default_profile(), description="demo: 200 episodes per level, seeds 0-2; paper: 15,000 episodes, seeds 0-9")
+    episodes: int | None = Field(default=None, description="training episodes per abstraction level (None: the profile's)")
+    seeds: list[int] | None = Field(default=None, description="training seeds (None: the profile's)")
+    methods: list[str] = Field(default=list(METHODS), description="learners to train: " + ", ".join(METHODS))
+
+
+@dg.asset(group_name="dcb", description="Ground delay of every flight in each learner's solution, per case and seed.")
+def dcb_delays(context: dg.AssetExecutionContext, config: TrainingConfig, dcb_cases: pl.DataFrame, dcb_sector_entries: pl.DataFrame,
+               dcb_sectors: pl.DataFrame, dcb_flights: pl.DataFrame) -> dg.Output:
+    prof = PROFILE[config.profile]
+    episodes, seeds = config.episodes or prof["episodes"], config.seeds if config.seeds is not None else prof["seeds"]
+    unknown = set(config.methods) - set(METHODS)
+    if unknown:
+        raise ValueError(f"unknown DCB methods {sorted(unknown)}: expected some of {', '.join(METHODS)}")
+    frames, runs = [], []
+    for case, problem in problems(dcb_cases, dcb_sector_entries, dcb_sectors, dcb_flights).items():
+        for method in config.methods:
+            for seed in seeds:
+                r = train(problem, method, seed, episodes, log=context.log.debug)
+                frames.append(delay_rows(case, method, seed, problem, r.delay_min, r.runtime_s, episodes=r.episodes))
+                runs.append({"case": case, "method": method, "seed": seed, "runtime_s": round(r.runtime_s, 1), "hotspots_left": r.hotspots_left,
+                             "total_delay_min": int(r.delay_min.sum()), "solution": r.source})
+                context.log.info(f"{runs[-1]}")
+    return dg.Output(pl.concat(frames), metadata={"episodes_per_level": episodes, "seeds": dg.MetadataValue.json(seeds),
+                                                  "runs": dg.MetadataValue.json(runs)})

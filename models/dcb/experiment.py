@@ -1,0 +1,135 @@
+"""The DCB experiment as pure transforms for the assets: demand + sectorisation -> entries, cases,
+problems, solutions -> metrics and thesis-style summaries (Tables 5.1-5.3)."""
+
+from pathlib import Path
+
+import numpy as np
+import polars as pl
+
+from models.aviation.ingest import summarise
+from models.dcb.airspace import GeoJSONSectorisation, GridSectorisation, sector_entries
+from models.dcb.cmarl import peer_edges
+from models.dcb.demand import adsb_demand, so6_demand
+from models.dcb.problem import DELAY_COST_EUR_PER_MIN, REGULATED_MIN, DCBProblem, aircraft_class, base_capacities, hotspot_table, scaled_capacities
+
+METRICS = ("avg_delay_min", "regulated_flights", "total_delay_min", "hotspots_left", "gap_to_optimum", "runtime_s")
+
+
+def load_demand(path: str | Path, min_points: int = 6, so6_step_s: float = 30.0):
+    """ADS-B/traffic table (foundation ingest) or SO6 file (by suffix .so6) -> (points, flights, rejects, summary).
+
+    rejects: source, row_number, reason, detail; summary: source, outcome, reason, rows (read = kept + rejected)."""
+    p = Path(path)
+    if p.suffix.lower() == ".so6":
+        points, flights, rej = so6_demand(p, so6_step_s)
+        rejects = rej.select("source", row_number=pl.col("line_number").cast(pl.Int64), reason="reason", detail="line")
+        read = len([ln for ln in p.read_text(errors="replace").splitlines() if ln.strip()])
+        summary = summarise(p.name, read, read - rejects.height, rejects)
+    else:
+        points, flights, rej, summary = adsb_demand(p, min_points)
+        rejects = rej.select(
+            "source", row_number=pl.col("row_index").cast(pl.Int64), reason="reason",
+            detail=pl.concat_str(pl.col("icao24"), pl.col("callsign"), pl.col("ts").dt.to_string("%Y-%m-%dT%H:%M:%S"), separator=" ", ignore_nulls=True),
+        )
+    flights = flights.with_columns(aircraft_class=aircraft_class(pl.col("aircraft_type")))
+    return points, flights, rejects, summary
+
+
+def sectorisation(geojson_path: str | None, cell_lat_deg: float, cell_lon_deg: float, fl_edges: list[float], box: list[float] | None):
+    """A user GeoJSON if given, else the grid (box = [lat_min, lat_max, lon_min, lon_max], None = the Swiss box)."""
+    if geojson_path:
+        return GeoJSONSectorisation(geojson_path)
+    extent = dict(zip(("lat_min", "lat_max", "lon_min", "lon_max"), box)) if box else {}
+    return GridSectorisation(cell_lat_deg=cell_lat_deg, cell_lon_deg=cell_lon_deg, fl_edges=tuple(fl_edges), **extent)
+
+
+def airspace_tables(points: pl.DataFrame, flights: pl.DataFrame, sectoriser) -> tuple[pl.DataFrame, pl.DataFrame, pl.DataFrame]:
+    """-> (sectors with base capacity, flights with cost and entry count, sector entries)."""
+    sectors = sectoriser.sectors()
+    entries = sector_entries(points, sectoriser)
+    base = base_capacities(entries, sectors)
+    sectors = sectors.with_columns(base_capacity_per_h=pl.col("sector").replace_strict(base, return_dtype=pl.Int64))
+    n = entries.group_by("flight_id").agg(n_entries=pl.len().cast(pl.Int64))
+    flights = flights.join(n, on="flight_id", how="left").select(
+        "flight_id", "callsign", "aircraft_type", "aircraft_class",
+        delay_cost_eur_per_min=pl.col("aircraft_class").replace_strict(DELAY_COST_EUR_PER_MIN, return_dtype=pl.Float64),
+        n_entries=pl.col("n_entries").fill_null(0),
+    )
+    return sectors, flights, entries.sort("flight_id", "entry_ts")
+
+
+def case_name(scale: float) -> str:
+    return f"cap{round(scale * 100):d}"
+
+
+def build_problem(entries: pl.DataFrame, sectors: pl.DataFrame, flights: pl.DataFrame, scale: float, max_delay_min: int) -> DCBProblem:
+    """The DCB problem of one case: every flight of the day is an agent (flights with no entry never act)."""
+    base = dict(sectors.select("sector", "base_capacity_per_h").iter_rows())
+    return DCBProblem(entries, scaled_capacities(base, scale), flights, max_delay_min)
+
+
+def case_row(case: str, scale: float, problem: DCBProblem) -> dict:
+    """Table 5.1's description of a case before any delay."""
+    zero = np.zeros(problem.n_flights, dtype=np.int64)
+    ev = problem.evaluate(zero)
+    i, j = peer_edges(ev, problem.entry_flight[problem.relevant], problem.n_flights)
+    in_hot = ev.hotspots_per_flight > 0
+    degree = np.bincount(np.concatenate([i, j]), minlength=problem.n_flights)
+    return {"case": case, "capacity_scale": scale, "max_delay_min": problem.max_delay_min, "n_flights": problem.n_flights,
+            "hotspots": ev.hotspots, "flights_in_hotspots": int(in_hot.sum()),
+            "avg_traffic_density": float(degree[in_hot].mean()) if in_hot.any() else 0.0}
+
+
+def hotspots_before(case: str, problem: DCBProblem) -> pl.DataFrame:
+    t = hotspot_table(problem, np.zeros(problem.n_flights, dtype=np.int64))
+    return t.filter("is_hotspot").select(pl.lit(case).alias("case"), "sector", "hour", "demand", "capacity")
+
+
+def delay_rows(case: str, method: str, seed: int, problem: DCBProblem, delay_min: np.ndarray, runtime_s: float, **extra) -> pl.DataFrame:
+    return pl.DataFrame({"flight_id": problem.flight_ids, "delay_min": delay_min.astype(np.int64)}).select(
+        case=pl.lit(case), method=pl.lit(method), seed=pl.lit(seed, pl.Int64), flight_id="flight_id", delay_min="delay_min",
+        runtime_s=pl.lit(float(runtime_s)), **{k: pl.lit(v, pl.Int64) for k, v in extra.items()},
+    )
+
+
+def results(delays: pl.DataFrame, problems: dict, optimum_total: dict) -> pl.DataFrame:
+    """dcb_delays/dcb_reference rows -> one metrics row per (case, method, seed)."""
+    rows = []
+    for (case, method, seed), g in delays.group_by("case", "method", "seed", maintain_order=True):
+        problem = problems[case]
+        d = g.select("flight_id", "delay_min").join(pl.DataFrame({"flight_id": problem.flight_ids}), on="flight_id", how="right")
+        delay = d["delay_min"].fill_null(0).to_numpy()
+        reg = delay >= REGULATED_MIN
+        opt = optimum_total.get(case)
+        rows.append({
+            "case": case, "method": method, "seed": seed,
+            "avg_delay_min": float(delay[reg].sum() / problem.n_flights), "regulated_flights": int(reg.sum()),
+            "hotspots_left": problem.evaluate(delay, all_entries=True).hotspots, "total_delay_min": int(delay.sum()),
+            "max_delay_min": int(delay.max()),
+            "gap_to_optimum": (delay.sum() - opt) / opt if opt else None, "runtime_s": float(g["runtime_s"][0]),
+        })
+    return pl.DataFrame(rows, schema_overrides={"gap_to_optimum": pl.Float64, "seed": pl.Int64})
+
+
+def summary(results_df: pl.DataFrame) -> pl.DataFrame:
+    """Mean, std, median, IQR over seeds per case, method and metric (Tables 5.2-5.3)."""
+    long = results_df.unpivot(index=["case", "method", "seed"], on=list(METRICS), variable_name="metric").drop_nulls("value")
+    return long.group_by("case", "method", "metric", maintain_order=True).agg(
+        n_seeds=pl.len().cast(pl.Int64), mean=pl.col("value").mean(), std=pl.col("value").std(), median=pl.col("value").median(),
+        iqr=pl.col("value").quantile(0.75, "linear") - pl.col("value").quantile(0.25, "linear"),
+    ).with_columns(pl.col("mean", "std", "median", "iqr").cast(pl.Float64))
+
+
+def summary_markdown(summ: pl.DataFrame, metrics=("avg_delay_min", "regulated_flights", "total_delay_min", "hotspots_left", "gap_to_optimum")) -> str:
+    """Tables 5.2/5.3-style markdown: one table per metric, rows case x method."""
+    out = []
+    for m in metrics:
+        t = summ.filter(pl.col("metric") == m)
+        if t.is_empty():
+            continue
+        out += [f"**{m}** (over seeds)", "", "| case | method | n | mean | std | median | IQR |", "|---|---|---|---|---|---|---|"]
+        fmt = lambda v: "" if v is None else f"{v:.3f}"  # noqa: E731
+        out += [f"| {r['case']} | {r['method']} | {r['n_seeds']} | {fmt(r['mean'])} | {fmt(r['std'])} | {fmt(r['median'])} | {fmt(r['iqr'])} |"
+                for r in t.iter_rows(named=True)]
+        out.append("")
+    return "\n".join(out)

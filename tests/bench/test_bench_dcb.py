@@ -1,0 +1,131 @@
+"""DCB learners (issue 5) on the full Swiss day, case cap95 (31 hotspots, 1,244 flight-agents):
+
+* episodes/s of the vectorised MIRL and CMARL against a per-flight (per-edge) Python loop of the same
+  action choice and Q update, in the same run, same seed (target >= 20x);
+* the exact optimum's solve time per case (HiGHS);
+* HCMARL at the thesis budget: 15,000 episodes per level on the full day (target < 5 min). Running
+  2 x 15,000 episodes here takes far longer than the target, so the benchmark times
+  TRAFFICLEARN_BENCH_DCB_EPISODES episodes per level (default 300) and projects linearly; set it to
+  15000 to run the real thing.
+"""
+
+import os
+import time
+
+import numpy as np
+import pytest
+
+import benchlib as b
+from models.dcb import cmarl
+from models.dcb.cmarl import CoordinatedQ
+from models.dcb.experiment import airspace_tables, build_problem, load_demand, sectorisation
+from models.dcb.mirl import IndependentQ
+from models.dcb.optimum import solve_optimum
+from models.dcb.train import EPISODES, GROUND, run_episode, train
+
+SWISS = b.REPO / "data" / "traffic_samples" / "switzerland_2018-08-01.parquet"
+TARGET_RATIO = 20.0
+TARGET_HCMARL_S = 300.0
+HCMARL_EPISODES = int(os.environ.get("TRAFFICLEARN_BENCH_DCB_EPISODES", "300"))
+_MASK = (1 << 64) - 1
+
+
+class LoopIndependentQ(IndependentQ):
+    """MIRL with the action values and Eq 5.6 computed one flight at a time."""
+
+    def values(self, state, agents, ev):
+        return np.array([[self.q[i, state[i], 0], self.q[i, state[i], 1]] for i in agents]).reshape(-1, 2)
+
+    update = IndependentQ.update_loop
+
+
+class LoopCoordinatedQ(CoordinatedQ):
+    """CMARL with Eq 5.9 and Eq 5.7 computed one edge at a time (same hashed table, Python integers)."""
+
+    def _row(self, i, j, si, sj) -> int:
+        key = ((int(i) * self.n_flights + int(j)) * self.n_states + int(si)) * self.n_states + int(sj)
+        return ((key * 0x9E3779B97F4A7C15) & _MASK) >> (64 - cmarl.TABLE_BITS)
+
+    def values(self, state, agents, ev):
+        i, j = cmarl.peer_edges(ev, self.flight_of_entry, self.n_flights)
+        per_flight = np.zeros((self.n_flights, 2))
+        for a, b_ in zip(i, j):
+            q = self.table[self._row(a, b_, state[a], state[b_])]
+            for x in (0, 1):
+                per_flight[a, x] += 0.5 * max(q[2 * x], q[2 * x + 1])
+                per_flight[b_, x] += 0.5 * max(q[x], q[2 + x])
+        self._edges = (i, j, None)
+        return per_flight[agents]
+
+    def update(self, state, action, reward, next_state, agents):
+        i, j, _ = self._edges
+        degree = np.bincount(np.concatenate([i, j]), minlength=self.n_flights)
+        for a, b_ in zip(i, j):
+            row = self._row(a, b_, state[a], state[b_])
+            joint = 2 * action[a] + action[b_]
+            target = reward[a] / degree[a] + reward[b_] / degree[b_] + self.gamma * self.table[self._row(a, b_, next_state[a], next_state[b_])].max()
+            self.table[row, joint] += np.float32(self.lr * (target - self.table[row, joint]))
+
+
+@pytest.fixture(scope="module")
+def swiss_tables():
+    points, flights, _, _ = load_demand(SWISS)
+    return airspace_tables(points, flights, sectorisation(None, 1.0, 1.15, [285.0, 355.0, 375.0, 480.0], None))
+
+
+@pytest.fixture(scope="module")
+def cap95(swiss_tables):
+    sectors, flights, entries = swiss_tables
+    return build_problem(entries, sectors, flights, 0.95, 60)
+
+
+def _episodes_per_s(problem, learner, n: int) -> tuple[float, np.ndarray]:
+    rng = np.random.default_rng(0)
+    t = time.perf_counter()
+    for _ in range(n):
+        delay, _ = run_episode(problem, learner, GROUND, 0.9, rng)
+    return n / (time.perf_counter() - t), delay
+
+
+@pytest.mark.parametrize("method, n_vec, n_loop", [("MIRL", 40, 10), ("CMARL", 10, 2)])
+def test_vectorised_vs_loop(cap95, bench_results, method, n_vec, n_loop):
+    n_states = GROUND.n_states(cap95.max_delay_min)
+    if method == "MIRL":
+        make_vec, make_loop = (lambda: IndependentQ(cap95.n_flights, n_states)), (lambda: LoopIndependentQ(cap95.n_flights, n_states))
+    else:
+        flight_of_entry = cap95.entry_flight[cap95.relevant]
+        make_vec = lambda: CoordinatedQ(cap95.n_flights, n_states, flight_of_entry)  # noqa: E731
+        make_loop = lambda: LoopCoordinatedQ(cap95.n_flights, n_states, flight_of_entry)  # noqa: E731
+    b.warn_if_busy(f"DCB {method} vectorised vs loop")
+    _, d_vec = _episodes_per_s(cap95, make_vec(), n_loop)
+    _, d_loop = _episodes_per_s(cap95, make_loop(), n_loop)
+    assert np.array_equal(d_vec, d_loop), "the loop baseline must make the same decisions"
+    vec, _ = _episodes_per_s(cap95, make_vec(), n_vec)
+    loop, _ = _episodes_per_s(cap95, make_loop(), n_loop)
+    ratio = vec / loop
+    bench_results[f"dcb_{method}_vectorised_vs_loop"] = {"vectorised_episodes_per_s": round(vec, 2), "loop_episodes_per_s": round(loop, 3),
+                                                         "ratio": round(ratio, 1), "target_ratio": TARGET_RATIO, "case": "cap95 full day"}
+    print(f"\nBENCH DCB {method} cap95 (1,244 flights): vectorised {vec:.2f} episodes/s, per-flight loop {loop:.3f} episodes/s: "
+          f"ratio {ratio:.1f}x (target >= {TARGET_RATIO:.0f}x)")
+    assert ratio >= TARGET_RATIO, f"{method}: vectorised only {ratio:.1f}x the per-flight loop"
+
+
+def test_optimum_solve_time(swiss_tables, bench_results):
+    out, (sectors, flights, entries) = {}, swiss_tables
+    for scale in (0.95, 0.9, 0.85, 0.8):
+        problem = build_problem(entries, sectors, flights, scale, 60)
+        delay, solve_s = solve_optimum(problem)
+        out[f"cap{round(scale * 100)}"] = {"solve_s": round(solve_s, 2), "total_delay_min": int(delay.sum()), "columns": int(np.unique(problem.entry_flight[problem.relevant]).size * 61)}
+        print(f"\nBENCH DCB optimum cap{round(scale * 100)}: {solve_s:.2f} s (total delay {delay.sum()} min)")
+    bench_results["dcb_optimum"] = out
+
+
+def test_hcmarl_thesis_budget(cap95, bench_results):
+    b.warn_if_busy("DCB HCMARL")
+    r = train(cap95, "HCMARL", seed=0, episodes=HCMARL_EPISODES)
+    projected = r.runtime_s * EPISODES / HCMARL_EPISODES
+    bench_results["dcb_hcmarl_full_day"] = {"episodes_per_level": HCMARL_EPISODES, "runtime_s": round(r.runtime_s, 1),
+                                            "projected_s_for_15000_per_level": round(projected, 1), "target_s": TARGET_HCMARL_S}
+    print(f"\nBENCH DCB HCMARL cap95: {HCMARL_EPISODES} episodes per level (x2 levels) in {r.runtime_s:.1f} s -> "
+          f"15,000 per level projected {projected:.0f} s (target < {TARGET_HCMARL_S:.0f} s): ratio {projected / TARGET_HCMARL_S:.1f}x the target")
+    assert projected < TARGET_HCMARL_S, f"HCMARL 15,000 episodes per level projected at {projected:.0f} s"

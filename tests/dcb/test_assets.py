@@ -1,0 +1,45 @@
+"""The DCB Dagster assets materialise on a small slice of the Swiss day (real data, few episodes)."""
+
+import dagster as dg
+import polars as pl
+
+from assets.dcb import ASSETS, CHECKS
+from tests.dcb.conftest import SWISS
+from warehouse.io_manager import ParquetIOManager
+from warehouse.storage import read_table
+
+
+def test_dcb_assets_materialise_on_a_slice(tmp_path):
+    raw = pl.read_parquet(SWISS)
+    start = raw.group_by("icao24").agg(pl.col("timestamp").min())
+    aircraft = start.filter(pl.col("timestamp").dt.hour().is_between(8, 9))["icao24"].implode()
+    sliced = raw.filter(pl.col("icao24").is_in(aircraft))
+    path = tmp_path / "swiss_slice.parquet"
+    sliced.write_parquet(path)
+    result = dg.materialize(ASSETS + CHECKS, resources={"io_manager": ParquetIOManager()}, run_config={"ops": {
+        "dcb_airspace": {"config": {"source_path": str(path)}},
+        "dcb_cases": {"config": {"capacity_scales": [0.9]}},
+        "dcb_delays": {"config": {"episodes": 5, "seeds": [0, 1], "methods": ["MIRL", "HCMARL"]}},
+    }})
+    assert result.success
+    summary = read_table("dcb_demand_summary")
+    rows = dict(zip(summary["outcome"] + summary["reason"], summary["rows"]))
+    assert rows["read"] == sliced.height == rows["kept"] + read_table("dcb_demand_rejects").height
+    flights, entries = read_table("dcb_flights"), read_table("dcb_sector_entries")
+    assert entries["flight_id"].is_in(flights["flight_id"].implode()).all() and (flights["n_entries"].sum() == entries.height)
+    cases = read_table("dcb_cases").row(0, named=True)
+    assert cases["case"] == "cap90" and cases["hotspots"] == read_table("dcb_hotspots").height > 0
+    assert (read_table("dcb_hotspots").select((pl.col("demand") > pl.col("capacity")).all()).item())
+    res = read_table("dcb_results")
+    assert sorted(res["method"].unique()) == ["FCFS", "HCMARL", "MIRL", "optimum"] and res.height == 2 + 2 * 2
+    opt = res.filter(pl.col("method") == "optimum").row(0, named=True)
+    assert opt["hotspots_left"] == 0 and opt["gap_to_optimum"] == 0.0
+    assert read_table("dcb_delays").height == 2 * 2 * flights.height
+    summ = read_table("dcb_summary").filter((pl.col("method") == "MIRL") & (pl.col("metric") == "total_delay_min")).row(0, named=True)
+    assert summ["n_seeds"] == 2 and summ["mean"] == res.filter(pl.col("method") == "MIRL")["total_delay_min"].mean()
+    checks = {e.check_name: e.passed for e in result.get_asset_check_evaluations()}
+    assert checks["demand_rows_accounted"] and checks["optimum_is_lower_bound"] and checks["entries_consistent"]
+    
+    md = result.asset_materializations_for_node("dcb_results")[0].metadata
+    assert any(k.startswith("dcb_demand_capacity_cap90") for k in md) and "dcb_delay_histogram_cap90" in md
+    assert "dcb_box_plots" in result.asset_materializations_for_node("dcb_summary")[0].metadata

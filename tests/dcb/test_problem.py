@@ -1,0 +1,80 @@
+"""Hotspot counting on a hand-built case, and the integer program against brute force."""
+
+import itertools
+from datetime import datetime, timedelta, timezone
+
+import numpy as np
+import polars as pl
+import pytest
+
+from models.dcb.optimum import fcfs, solve_optimum
+from models.dcb.problem import DCBProblem, hotspot_table
+
+T0 = datetime(2018, 8, 1, tzinfo=timezone.utc)
+
+
+def make_problem(rows, capacity, max_delay_min=60):
+    """rows: (flight, sector, entry minute, minutes inside)."""
+    entries = pl.DataFrame({
+        "flight_id": [r[0] for r in rows], "sector": [r[1] for r in rows],
+        "entry_ts": [T0 + timedelta(minutes=r[2]) for r in rows], "exit_ts": [T0 + timedelta(minutes=r[2] + r[3]) for r in rows],
+    }).with_columns(pl.col("entry_ts", "exit_ts").cast(pl.Datetime("us", "UTC")))
+    flights = pl.DataFrame({"flight_id": sorted({r[0] for r in rows}), "aircraft_class": "unknown"})
+    return DCBProblem(entries, capacity, flights, max_delay_min)
+
+
+def test_hotspots_of_a_hand_built_case():
+    # sector A (capacity 2): 3 entries in 10:00-11:00 -> hotspot; 2 entries in 11:00-12:00 -> at capacity, no hotspot
+    # sector B (capacity 1): f1 and f4 enter in 10:00-11:00 -> hotspot; f5 alone at 12:30 -> none
+    rows = [("f1", "A", 600, 10), ("f2", "A", 610, 5), ("f3", "A", 659, 20), ("f4", "A", 660, 7), ("f5", "A", 700, 3),
+            ("f1", "B", 615, 12), ("f4", "B", 640, 4), ("f5", "B", 750, 6)]
+    p = make_problem(rows, {"A": 2, "B": 1})
+    zero = np.zeros(p.n_flights, dtype=np.int64)
+    ev = p.evaluate(zero, all_entries=True)
+    assert ev.hotspots == 2
+    assert dict(zip(p.flight_ids, ev.hotspots_per_flight)) == {"f1": 2, "f2": 1, "f3": 1, "f4": 1, "f5": 0}
+    assert dict(zip(p.flight_ids, ev.congested_min)) == {"f1": 22.0, "f2": 5.0, "f3": 20.0, "f4": 4.0, "f5": 0.0}
+    # the learners' reduced evaluation sees the same hotspots and the same per-flight picture
+    small = p.evaluate(zero)
+    assert small.hotspots == 2 and (small.hotspots_per_flight == ev.hotspots_per_flight).all()
+    table = hotspot_table(p, zero).filter("is_hotspot").sort("sector")
+    assert table.select("sector", "demand", "capacity").rows() == [("A", 3, 2), ("B", 2, 1)]
+    assert table["hour"].to_list() == [T0 + timedelta(hours=10)] * 2
+    # delaying f3 by 1 min moves its entry to 11:00 -> A 10:00 has 2 (ok) but A 11:00 gets 3 -> still 2 hotspots
+    d = zero.copy()
+    d[p.flight_ids.index("f3")] = 1
+    assert p.evaluate(d, all_entries=True).hotspots == 2
+    # delaying f4 by 20 min (B entry at 11:00) and f3 by 61 min (A entry at 12:00) resolves both
+    d[p.flight_ids.index("f4")], d[p.flight_ids.index("f3")] = 20, 61
+    assert p.evaluate(d, all_entries=True).hotspots == 0
+
+
+def brute_force(p: DCBProblem) -> int:
+    best = None
+    for combo in itertools.product(range(p.max_delay_min + 1), repeat=p.n_flights):
+        d = np.array(combo)
+        if p.evaluate(d, all_entries=True).hotspots == 0 and (best is None or d.sum() < best):
+            best = int(d.sum())
+    return best
+
+
+@pytest.mark.parametrize("capacity", [{"A": 2, "B": 1}, {"A": 2, "B": 2}])
+def test_integer_program_matches_brute_force(capacity):
+    # entries close to the hour boundary so that small delays (<= 6 min) can move them on
+    rows = [("f1", "A", 55, 5), ("f2", "A", 56, 5), ("f3", "A", 57, 5), ("f4", "A", 114, 5),
+            ("f1", "B", 58, 5), ("f4", "B", 59, 5), ("f2", "B", 118, 5)]
+    p = make_problem(rows, capacity, max_delay_min=6)
+    delay, solve_s = solve_optimum(p)
+    assert p.evaluate(delay, all_entries=True).hotspots == 0
+    assert int(delay.sum()) == brute_force(p) > 0
+    assert solve_s >= 0
+    first_come = fcfs(p)  # FCFS resolves every hotspot too, never with less delay than the optimum
+    assert p.evaluate(first_come, all_entries=True).hotspots == 0 and first_come.sum() >= delay.sum()
+
+
+def test_optimum_reports_infeasible_within_max_delay():
+    from models.dcb.optimum import InfeasibleError
+
+    p = make_problem([("f1", "A", 0, 5), ("f2", "A", 1, 5)], {"A": 1}, max_delay_min=10)
+    with pytest.raises(InfeasibleError, match="Infeasible"):
+        solve_optimum(p)

@@ -8,7 +8,7 @@ export DAGSTER_HOME := $(TRAFFICLEARN_HOME)/dagster
 export PYTHONUNBUFFERED := 1
 export TRAFFICLEARN_PROFILE ?= $(or $(PROFILE),demo)
 # asset groups `make demo` materialises, in order
-DEMO_GROUPS := aviation
+DEMO_GROUPS := aviation trajectory urban dcb
 
 .PHONY: demo test bench dev tables clean
 

@@ -18,6 +18,8 @@ class TrainingConfig(dg.Config):
     episodes: int | None = Field(default=None, description="training episodes per abstraction level (None: the profile's)")
     seeds: list[int] | None = Field(default=None, description="training seeds (None: the profile's)")
     methods: list[str] = Field(default=list(METHODS), description="learners to train: " + ", ".join(METHODS))
+    state: str = Field(default="thesis", description="local state: thesis (d_i, h_i) or extended (d_i, h_i, x_i: among the flights cheapest to push out of its hotspot)")
+    reward: str = Field(default="thesis", description="thesis (Eq 5.2-5.4 per flight) or difference (each flight's own change of the day's Eq 5.2 total)")
 
 
 @dg.asset(group_name="dcb", description="Ground delay of every flight in each learner's solution, per case and seed.")
@@ -32,10 +34,11 @@ def dcb_delays(context: dg.AssetExecutionContext, config: TrainingConfig, dcb_ca
     for case, problem in problems(dcb_cases, dcb_sector_entries, dcb_sectors, dcb_flights).items():
         for method in config.methods:
             for seed in seeds:
-                r = train(problem, method, seed, episodes, log=context.log.debug)
+                r = train(problem, method, seed, episodes, log=context.log.debug, state=config.state, reward=config.reward)
                 frames.append(delay_rows(case, method, seed, problem, r.delay_min, r.runtime_s, episodes=r.episodes))
                 runs.append({"case": case, "method": method, "seed": seed, "runtime_s": round(r.runtime_s, 1), "hotspots_left": r.hotspots_left,
                              "total_delay_min": int(r.delay_min.sum()), "solution": r.source})
                 context.log.info(f"{runs[-1]}")
     return dg.Output(pl.concat(frames), metadata={"episodes_per_level": episodes, "seeds": dg.MetadataValue.json(seeds),
+                                                  "state": config.state, "reward": config.reward,
                                                   "runs": dg.MetadataValue.json(runs)})

@@ -10,6 +10,6 @@ JOBS = [
     dg.define_asset_job(
         "trajectory_imitation",
         selection=dg.AssetSelection.groups("trajectory"),
-        description="Train multi-modal GAIL (MMIL/SMIL), BC; evaluate with baselines on held-out flights; report.",
+        description="Train multi-modal GAIL (MMIL/SMIL), BC, AppLearn and the SVM baseline; evaluate with baselines on held-out flights; report.",
     )
 ]

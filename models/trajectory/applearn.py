@@ -14,9 +14,11 @@ Algorithm 7 and the saved model, in that order. The equations, as in §6.4:
 r_aug is the reward augmentation of §6.5.2: a large bonus on reaching the destination, a large penalty on
 leaving the box or hitting the step limit. The environment is models.trajectory.heading_env (Eq 6.4).
 
-One deviation from the thesis, on by default (`goal_offset_input`): the Q-network also sees the offset to
-the goal, scaled by the box size. φ alone locates the aircraft only to within one RBF width (~50 km), too
-coarse to aim at the 5 km goal disc; the reward and the IRL step still use φ only.
+Choices the thesis leaves open or that deviate from it are commented at their parameters (gamma,
+failure_reward, reward_scale, feature_gamma, start_anywhere_fraction). The main deviation, on by default
+(`goal_offset_input`): the Q-network also sees the offset to the goal, scaled by the box size. φ alone
+locates the aircraft only to within one RBF width (~50 km), too coarse to aim at the 5 km goal disc; the
+reward and the IRL step still use φ only.
 """
 
 import io

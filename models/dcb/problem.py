@@ -10,6 +10,9 @@ Reward of flight-agent i (Eq 5.2-5.4), λ = 20:
           C_PLUS        if TDC_i = 0    81 €/min is Europe's average strategic delay cost. The thesis prints
                                         "81 × TDC"; as congestion must be penalised it enters with a minus.)
     DC_i = SDC(d_i, class_i) = d_i · cost_class / 81   (delay in average-cost minutes, see DELAY_COST_EUR_PER_MIN)
+
+Beyond the thesis (options of the learners, docs/dcb.md): `difference_reward`, each flight's own change
+of the day's total of Eq 5.2, and `movers`, the extra component of the extended local state.
 """
 
 from dataclasses import dataclass
@@ -119,10 +122,45 @@ class DCBProblem:
         tdc = np.bincount(flight, weights=entry_hot * self.entry_dur_min[idx], minlength=self.n_flights)
         return Evaluation(counts, hot, key, entry_hot, h.astype(np.int64), tdc)
 
+    def movers(self, delay_min: np.ndarray, ev: Evaluation) -> np.ndarray:
+        """[flight] 1 if one of its hot entries is among the `demand - capacity` entries of that hotspot
+        closest to the end of their hour (the cheapest to push out of it), else 0 - the extended state's
+        extra component. A flight entering at hh:58 needs 2 min of delay to leave its hotspot hour, one
+        at hh:05 needs 55; the thesis state (d_i, h_i) does not say which of a hotspot's flights these are."""
+        idx = self.relevant[ev.entry_hot]
+        key = ev.entry_key[ev.entry_hot]
+        to_leave = 60 - (self.entry_min[idx] + delay_min[self.entry_flight[idx]]) % 60
+        order = np.lexsort((self.entry_flight[idx], to_leave, key))  # ties: lower flight index first (deterministic)
+        ks = key[order]
+        rank = np.arange(ks.size) - np.searchsorted(ks, ks, side="left")
+        excess = ev.counts[ks] - self.capacity[ks]
+        return np.bincount(self.entry_flight[idx][order][rank < excess], minlength=self.n_flights).clip(max=1)
+
     def reward(self, delay_min: np.ndarray, ev: Evaluation) -> np.ndarray:
         """Eq 5.2-5.4 for every flight."""
         congestion = np.where(ev.congested_min > 0, -AVG_DELAY_COST_EUR_PER_MIN * ev.congested_min, C_PLUS)
         return congestion - LAMBDA * self.delay_weight * delay_min
+
+    def difference_reward(self, added_min: np.ndarray, before: Evaluation, after: Evaluation) -> np.ndarray:
+        """D_i = G(z) - G(z_-i): what flight i's own action changed in the day's congestion and delay cost,
+        G = -81 · Σ_i TDC_i - λ · Σ_i DC_i (Eq 5.2 summed over flights, C₊ left out), against i holding
+        instead while everybody else does what they did (Wolpert & Tumer's difference reward). The thesis
+        reward charges every flight of a hotspot until it clears, so all of them learn to flee; D_i pays
+        only for moves that were needed.
+
+        A flight that holds gets 0. One that delays pays λ · its added delay [average-cost min] and, for
+        each entry that changed sector-hour, is credited the congestion its leaving removed from the old
+        one (its own minutes there, or the whole hotspot's minutes if it was the entry that cleared it)
+        and charged what its arrival added to the new one. Exact for one entry per flight and sector-hour."""
+        change = before.entry_key != after.entry_key
+        moved, k0, k1 = self.relevant[change], before.entry_key[change], after.entry_key[change]
+        dur, count = self.entry_dur_min[moved], after.counts
+        inside = np.bincount(after.entry_key, weights=self.entry_dur_min[self.relevant], minlength=self.capacity.size)  # minutes per sector-hour
+        cap0, cap1 = self.capacity[k0], self.capacity[k1]
+        removed = (count[k0] + 1 > cap0) * (inside[k0] + dur) - (count[k0] > cap0) * inside[k0]
+        added = (count[k1] > cap1) * inside[k1] - (count[k1] - 1 > cap1) * (inside[k1] - dur)
+        congestion = np.bincount(self.entry_flight[moved], weights=removed - added, minlength=self.n_flights)
+        return AVG_DELAY_COST_EUR_PER_MIN * congestion - LAMBDA * self.delay_weight * added_min
 
 
 def base_capacities(entries: pl.DataFrame, sectors: pl.DataFrame) -> dict[str, int]:

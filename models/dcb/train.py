@@ -17,6 +17,12 @@ d_i to d_i // state_step (φ_L, Eq 5.11) and lets an action add `action_step` mi
     sHMIRL    independent   (10, 1)     state abstraction only
     tHMIRL    independent   (1, 10)     temporal abstraction only
 
+Two options beyond the thesis (defaults: "thesis"), see docs/dcb.md for what they change:
+- state="extended": s_i = (d_i, h_i, x_i), x_i = 1 if one of the flight's hot entries is among the
+  `demand - capacity` entries of its hotspot closest to the end of their hour (DCBProblem.movers);
+- reward="difference": each flight is rewarded with what its own action changed in the day's total
+  of Eq 5.2 (DCBProblem.difference_reward) instead of its local Eq 5.2 reward.
+
 Q-values of the abstract level initialise the ground level (Q_ground(s) = Q_abstract(φ(s))), which
 then trains with exploration starting at ε = 0.7. The solution is the greedy (ε = 0) rollout of the
 final ground-level policy - or, where that rollout leaves hotspots or more total delay, the best
@@ -26,7 +32,7 @@ the best schedule found, and the greedy policy of a short run often still leaves
 """
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -41,23 +47,27 @@ EPSILON_DECAY = 0.01  # ε decreases by this ...
 EPSILON_EVERY = 120  # ... every this many episodes (of 15,000; scaled to shorter runs)
 H_CAP = 3  # h_i states: 0, 1, 2, >= 3 hotspots
 ABSTRACT_STEP_MIN = 10  # I, the abstract level's interval
+STATES = {"thesis": 1, "extended": 2}  # local state -> values of its extra component x_i
+REWARDS = ("thesis", "difference")  # Eq 5.2-5.4 per flight, or its difference reward (DCBProblem.difference_reward)
 
 
 @dataclass(frozen=True)
 class Level:
     state_step: int  # minutes of delay per abstract state (φ_L)
     action_step: int  # minutes added by the "delay" action
+    n_extra: int = 1  # values of the extended state's extra component x_i (1: the thesis state)
 
     def n_states(self, max_delay: int) -> int:
-        return (max_delay // self.state_step + 1) * (H_CAP + 1)
+        return (max_delay // self.state_step + 1) * (H_CAP + 1) * self.n_extra
 
-    def state(self, delay_min: np.ndarray, hotspots: np.ndarray) -> np.ndarray:
-        return (delay_min // self.state_step) * (H_CAP + 1) + np.minimum(hotspots, H_CAP)
+    def state(self, delay_min: np.ndarray, hotspots: np.ndarray, extra: np.ndarray | int = 0) -> np.ndarray:
+        return ((delay_min // self.state_step) * (H_CAP + 1) + np.minimum(hotspots, H_CAP)) * self.n_extra + extra
 
     def state_map(self, max_delay: int) -> np.ndarray:
         """φ: ground state index -> this level's state index."""
-        ground = np.arange(GROUND.n_states(max_delay))
-        return self.state(ground // (H_CAP + 1), ground % (H_CAP + 1))
+        ground = np.arange(GROUND.n_states(max_delay) * self.n_extra)
+        dh = ground // self.n_extra
+        return self.state(dh // (H_CAP + 1), dh % (H_CAP + 1), ground % self.n_extra)
 
 
 GROUND = Level(1, 1)
@@ -86,7 +96,13 @@ def epsilon(episode: int, start: float, episodes: int) -> float:
     return max(0.0, start - EPSILON_DECAY * (episode // every))
 
 
-def run_episode(problem: DCBProblem, learner, level: Level, eps: float, rng: np.random.Generator, learn: bool = True) -> tuple[np.ndarray, int]:
+def local_state(problem: DCBProblem, level: Level, delay: np.ndarray, ev) -> np.ndarray:
+    """s_i = (d_i, h_i), or (d_i, h_i, x_i) with x_i = `problem.movers` for the extended state."""
+    return level.state(delay, ev.hotspots_per_flight, problem.movers(delay, ev) if level.n_extra > 1 else 0)
+
+
+def run_episode(problem: DCBProblem, learner, level: Level, eps: float, rng: np.random.Generator, learn: bool = True,
+                reward: str = "thesis") -> tuple[np.ndarray, int]:
     """One episode from zero delays; returns the final delays [min] and the hotspots they leave."""
     delay = np.zeros(problem.n_flights, dtype=np.int64)
     ev = problem.evaluate(delay)
@@ -94,17 +110,17 @@ def run_episode(problem: DCBProblem, learner, level: Level, eps: float, rng: np.
         agents = np.nonzero((ev.hotspots_per_flight > 0) & (delay + level.action_step <= problem.max_delay_min))[0]
         if agents.size == 0:
             break
-        state = level.state(delay, ev.hotspots_per_flight)
+        state = local_state(problem, level, delay, ev)
         q = learner.values(state, agents, ev)
         greedy = (q[:, 1] > q[:, 0]).astype(np.int64)  # ties hold: no delay without a reason
         explore = rng.random(agents.size) < eps
         action = np.zeros(problem.n_flights, dtype=np.int64)
         action[agents] = np.where(explore, rng.integers(0, 2, agents.size), greedy)
-        delay = delay + action * level.action_step
+        delay, before = delay + action * level.action_step, ev
         ev = problem.evaluate(delay)
         if learn:
-            reward = problem.reward(delay, ev)
-            learner.update(state, action, reward, level.state(delay, ev.hotspots_per_flight), agents)
+            r = problem.reward(delay, ev) if reward == "thesis" else problem.difference_reward(action * level.action_step, before, ev)
+            learner.update(state, action, r, local_state(problem, level, delay, ev), agents)
     return delay, ev.hotspots
 
 
@@ -114,27 +130,37 @@ def _make(learner_cls, problem: DCBProblem, n_states: int):
     return IndependentQ(problem.n_flights, n_states)
 
 
-def train(problem: DCBProblem, method: str, seed: int, episodes: int = EPISODES, log=None) -> TrainResult:
-    """Train `method` on `problem` (`episodes` per level) and return its solution (greedy rollout or best episode)."""
+def train(problem: DCBProblem, method: str, seed: int, episodes: int = EPISODES, log=None, state: str = "thesis",
+          reward: str = "thesis") -> TrainResult:
+    """Train `method` on `problem` (`episodes` per level) and return its solution (greedy rollout or best episode).
+
+    state: "thesis" (d_i, h_i) or "extended" (d_i, h_i, x_i), see `local_state`; reward: "thesis" (Eq 5.2-5.4
+    per flight) or "difference" (`DCBProblem.difference_reward`)."""
+    if state not in STATES:
+        raise ValueError(f"unknown DCB local state {state!r}: expected one of {', '.join(STATES)}")
+    if reward not in REWARDS:
+        raise ValueError(f"unknown DCB reward {reward!r}: expected one of {', '.join(REWARDS)}")
     learner_cls, abstract = METHODS[method]
+    ground = replace(GROUND, n_extra=STATES[state])
+    abstract = abstract and replace(abstract, n_extra=STATES[state])
     rng = np.random.default_rng(seed)
     started = time.perf_counter()
     curve = []
-    levels = [(abstract, EPSILON_START), (GROUND, EPSILON_GROUND_START)] if abstract else [(GROUND, EPSILON_START)]
+    levels = [(abstract, EPSILON_START), (ground, EPSILON_GROUND_START)] if abstract else [(ground, EPSILON_START)]
     learner, best, n = None, (np.inf, np.inf, None), 0
     for level, eps0 in levels:
         n_states = level.n_states(problem.max_delay_min)
         learner = _make(learner_cls, problem, n_states) if learner is None else learner.transferred(n_states, abstract.state_map(problem.max_delay_min))
         for e in range(episodes):
-            delay, hot = run_episode(problem, learner, level, epsilon(e, eps0, episodes), rng)
-            if level is GROUND and (hot, delay.sum()) < best[:2]:
+            delay, hot = run_episode(problem, learner, level, epsilon(e, eps0, episodes), rng, reward=reward)
+            if level is ground and (hot, delay.sum()) < best[:2]:
                 best = (hot, delay.sum(), delay)
             if e % 50 == 0 or e == episodes - 1:
                 curve.append((n, hot, int(delay.sum())))
                 if log and e % max(1, episodes // 5) == 0:
                     log(f"{method} seed {seed} level {level}: episode {e}/{episodes}, hotspots left {hot}, total delay {delay.sum()} min")
             n += 1
-    delay, hot = run_episode(problem, learner, GROUND, 0.0, rng, learn=False)
+    delay, hot = run_episode(problem, learner, ground, 0.0, rng, learn=False)
     source = "greedy"
     if (hot, delay.sum()) > best[:2]:
         (hot, _, delay), source = best, "best_episode"

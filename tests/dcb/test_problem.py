@@ -78,3 +78,38 @@ def test_optimum_reports_infeasible_within_max_delay():
     p = make_problem([("f1", "A", 0, 5), ("f2", "A", 1, 5)], {"A": 1}, max_delay_min=10)
     with pytest.raises(InfeasibleError, match="Infeasible"):
         solve_optimum(p)
+
+
+HAND_BUILT = [("f1", "A", 600, 10), ("f2", "A", 610, 5), ("f3", "A", 659, 20), ("f4", "A", 660, 7), ("f5", "A", 700, 3),
+              ("f1", "B", 615, 12), ("f4", "B", 640, 4), ("f5", "B", 750, 6)]
+
+
+def test_movers_are_the_entries_closest_to_the_end_of_their_hour():
+    # A 10:00 (capacity 2): f1, f2, f3 enter at :00, :10, :59 -> excess 1, f3 leaves the hour first;
+    # B 10:00 (capacity 1): f1 at :15, f4 at :40 -> excess 1, f4 leaves first
+    p = make_problem(HAND_BUILT, {"A": 2, "B": 1})
+    zero = np.zeros(p.n_flights, dtype=np.int64)
+    assert dict(zip(p.flight_ids, p.movers(zero, p.evaluate(zero)))) == {"f1": 0, "f2": 0, "f3": 1, "f4": 1, "f5": 0}
+
+
+def test_difference_reward_is_each_flights_own_change_of_the_day_total():
+    """D_i = G(z) - G(z with i's action undone), G = -81 Σ TDC - λ Σ DC, checked against recomputing G."""
+    p = make_problem(HAND_BUILT, {"A": 2, "B": 1})
+
+    def total(d):
+        return -81.0 * p.evaluate(d, all_entries=True).congested_min.sum() - 20.0 * (p.delay_weight * d).sum()
+
+    rng = np.random.default_rng(0)
+    for _ in range(40):
+        before = rng.integers(0, 50, p.n_flights)
+        added = rng.integers(0, 2, p.n_flights) * rng.choice([1, 10])
+        after = before + added
+        r = p.difference_reward(added, p.evaluate(before), p.evaluate(after))
+        for i in range(p.n_flights):
+            undone = after.copy()
+            undone[i] = before[i]
+            assert r[i] == pytest.approx(total(after) - total(undone))
+    # f3 delayed 1 min clears A 10:00 (15 + 20 congested min gone) and overloads A 11:00 (f3, f4, f5: 30 min): 81 * 5 - 20
+    zero = np.zeros(p.n_flights, dtype=np.int64)
+    one = (np.array(p.flight_ids) == "f3").astype(np.int64)
+    assert p.difference_reward(one, p.evaluate(zero), p.evaluate(one)).tolist() == [0.0, 0.0, 385.0, 0.0, 0.0]

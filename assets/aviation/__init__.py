@@ -2,14 +2,9 @@
 
 import dagster as dg
 
+from assets.jobs import group_job
 from assets.aviation import checks, ingest, modes, tracks, weather
 
 ASSETS = dg.load_assets_from_modules([ingest, weather, tracks, modes])
 CHECKS = checks.CHECKS
-JOBS = [
-    dg.define_asset_job(
-        "aviation_data",
-        selection=dg.AssetSelection.groups("aviation"),
-        description="Ingest flights and weather, resample to constant steps, segment phases, cluster modes, split.",
-    )
-]
+JOBS = [group_job("aviation_data", "aviation", "Ingest flights and weather, resample to constant steps, segment phases, cluster modes, split.")]

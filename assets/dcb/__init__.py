@@ -2,14 +2,9 @@
 
 import dagster as dg
 
+from assets.jobs import group_job
 from assets.dcb import airspace, cases, checks, results, training
 
 ASSETS = dg.load_assets_from_modules([airspace, cases, training, results])
 CHECKS = checks.CHECKS
-JOBS = [
-    dg.define_asset_job(
-        "dcb",
-        selection=dg.AssetSelection.groups("dcb"),
-        description="Load a day of traffic and a sectorisation, find the hotspots, solve them exactly and with every learner, report.",
-    )
-]
+JOBS = [group_job("dcb", "dcb", "Load a day of traffic and a sectorisation, find the hotspots, solve them exactly and with every learner, report.")]

@@ -2,14 +2,9 @@
 
 import dagster as dg
 
+from assets.jobs import group_job
 from assets.urban import checks, evaluation, scenarios, training
 
 ASSETS = dg.load_assets_from_modules([scenarios, training, evaluation])
 CHECKS = checks.CHECKS
-JOBS = [
-    dg.define_asset_job(
-        "urban",
-        selection=dg.AssetSelection.groups("urban"),
-        description="Generate unsignalized SUMO scenarios, train col-MARL / i-MARL route agents, evaluate against IDM and Krauss.",
-    )
-]
+JOBS = [group_job("urban", "urban", "Generate unsignalized SUMO scenarios, train col-MARL / i-MARL route agents, evaluate against IDM and Krauss.")]

@@ -34,7 +34,6 @@ from torch import nn
 
 from models.urban.env import INTER_TIME_S, UrbanParallelEnv
 from models.urban.network import read_net
-from models.urban.sim import ACTION_S
 
 # --- hyperparameters (§3.4-3.5.3) ---------------------------------------------------------------
 SPEEDS_MPS = (15.0, 20.0, 25.0, 30.0)
@@ -58,8 +57,8 @@ class JunctionGeometry:
     """Per junction its centre and half-size; per lane its end point and end direction; per edge its start."""
 
     def __init__(self, net_path: str):
-        net = read_net(net_path)
-        nodes = net.getNodes()
+        net = read_net(Path(net_path))
+        nodes = net.getNodes()  # the order of models.urban.sim.NetIndex: same junction indices
         self.centre = np.array([n.getCoord()[:2] for n in nodes], float)
         self.half_m = np.array([max(np.abs(np.array(n.getShape())[:, :2] - c).max() if n.getShape() else 0.0, 5.0)
                                 for n, c in zip(nodes, self.centre)])

@@ -36,7 +36,7 @@ from pettingzoo import ParallelEnv
 from models.urban.scenarios import ACTIONS_MPS2
 from models.urban.sim import ACTION_S, SPEED_MODE_FREE, SPEED_MODE_LEADER_GUARD, ScenarioFiles, Simulation
 
-GOAL_REWARD = 1000.0  # L of Eq 4.3 (not given; "not sensitive"): one step of delay must cost more (γ L ≈ 10) than Eq 4.6 saves (c2 + f(v) ≤ 6)
+GOAL_REWARD = 1000.0  # L of Eq 4.3 (not given; "not sensitive"): a second of delay must cost more ((1 - γ) L = 10) than Eq 4.6 saves by stopping (c2 + f(v) ≤ 6)
 SAFE_DIST_M = 20.0  # safe_dist of Eq 4.5-4.7
 C1, C2, C3 = 0.2, 5.0, 0.4  # Eq 4.5, 4.6, 4.7
 BETA1, BETA2 = 3.0, 1.0  # Eq 3.2, 3.3 (i-MARL)

@@ -22,7 +22,7 @@ exactly "copy the abstract Q-values down", done lazily for the keys actually vis
 
 import numpy as np
 
-from models.dcb.mirl import GAMMA, LEARNING_RATE
+from models.dcb.mirl import GAMMA, LEARNING_RATE, row_max
 
 TABLE_BITS = 20
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
@@ -38,7 +38,10 @@ def peer_edges(ev, flight_of_entry: np.ndarray, n_flights: int) -> tuple[np.ndar
     first = np.repeat(np.arange(key.size), later)
     second = first + 1 + np.arange(first.size) - np.repeat(np.cumsum(later) - later, later)
     i, j = np.minimum(flight[first], flight[second]), np.maximum(flight[first], flight[second])
-    pair = np.unique(i[i != j] * n_flights + j[i != j])
+    pair = np.sort(i[i != j] * n_flights + j[i != j])
+    first_of_run = np.ones(pair.size, dtype=bool)
+    first_of_run[1:] = pair[1:] != pair[:-1]
+    pair = pair[first_of_run]  # unique pairs, as np.unique but several times faster here
     return pair // n_flights, pair % n_flights
 
 
@@ -52,11 +55,11 @@ class CoordinatedQ:
 
     def _rows(self, i, j, s_i, s_j) -> np.ndarray:
         key = ((i * self.n_flights + j) * self.n_states + s_i) * self.n_states + s_j
-        return (key.astype(np.uint64) * _GOLDEN) >> np.uint64(64 - TABLE_BITS)
+        return ((key.astype(np.uint64) * _GOLDEN) >> np.uint64(64 - TABLE_BITS)).view(np.int64)  # row < 2^20: same value as int64
 
-    def edge_q(self, i, j, s_i, s_j) -> np.ndarray:
-        """Q_ij(s_ij, ·) for every edge -> [edges, 4], joint action a_ij = 2·a_i + a_j."""
-        q = self.table[self._rows(i, j, s_i, s_j)].astype(np.float64)
+    def edge_q(self, i, j, s_i, s_j, rows: np.ndarray | None = None) -> np.ndarray:
+        """Q_ij(s_ij, ·) for every edge -> [edges, 4], joint action a_ij = 2·a_i + a_j (`rows`: this table's rows if known)."""
+        q = np.take(self.table, self._rows(i, j, s_i, s_j) if rows is None else rows, axis=0).astype(np.float64)  # take: ~10x faster than table[rows]
         if self.prior is not None:
             q += self.prior.edge_q(i, j, self.state_map[s_i], self.state_map[s_j])
         return q
@@ -64,27 +67,29 @@ class CoordinatedQ:
     def values(self, state: np.ndarray, agents: np.ndarray, ev) -> np.ndarray:
         """Q_i(s_i, ·) of the acting agents from their edges (Eq 5.9) -> [agents, 2]."""
         i, j = peer_edges(ev, self.flight_of_entry, self.n_flights)
-        q_flat = self.edge_q(i, j, state[i], state[j])
-        self._edges = (i, j, q_flat)  # the update's current Q_ij(s_ij, ·)
+        rows = self._rows(i, j, state[i], state[j])
+        q_flat = self.edge_q(i, j, state[i], state[j], rows)
+        self._edges = (i, j, rows, q_flat)  # the update's edges and current Q_ij(s_ij, ·)
         q = q_flat.reshape(-1, 2, 2)  # [edge, a_i, a_j]
         per_flight = np.zeros((self.n_flights, 2))
         for a in (0, 1):
             per_flight[:, a] = 0.5 * (
-                np.bincount(i, weights=q[:, a, :].max(axis=1), minlength=self.n_flights)
-                + np.bincount(j, weights=q[:, :, a].max(axis=1), minlength=self.n_flights)
+                np.bincount(i, weights=row_max(q[:, a, :]), minlength=self.n_flights)
+                + np.bincount(j, weights=row_max(q[:, :, a]), minlength=self.n_flights)
             )
         return per_flight[agents]
 
     def update(self, state, action, reward, next_state, agents) -> None:
         """Eq 5.7 on every edge of the graph the actions were chosen on."""
-        i, j, q = self._edges
+        i, j, rows, q = self._edges
         if i.size == 0:
             return
         degree = np.bincount(np.concatenate([i, j]), minlength=self.n_flights)
         joint = 2 * action[i] + action[j]
-        target = reward[i] / degree[i] + reward[j] / degree[j] + self.gamma * self.edge_q(i, j, next_state[i], next_state[j]).max(axis=1)
+        target = reward[i] / degree[i] + reward[j] / degree[j] + self.gamma * row_max(self.edge_q(i, j, next_state[i], next_state[j]))
         current = q[np.arange(i.size), joint]
-        np.add.at(self.table, (self._rows(i, j, state[i], state[j]), joint), (self.lr * (target - current)).astype(np.float32))
+        # add.at, not +=: two edges may share a hashed row
+        np.add.at(self.table.reshape(-1), rows * 4 + joint, (self.lr * (target - current)).astype(np.float32))
 
     def transferred(self, n_states: int, state_map: np.ndarray) -> "CoordinatedQ":
         """Ground-level learner whose Q starts at this (abstract) learner's Q(φ(s))."""

@@ -62,6 +62,19 @@ class Evaluation:
         return int(self.hot.sum())
 
 
+@dataclass
+class _Entries:
+    """Per-entry arrays of a subset of the entries, gathered once."""
+
+    flight: np.ndarray
+    key_base: np.ndarray  # sector · n_hours
+    whole_min: np.ndarray  # ⌊entry minute⌋
+    dur_min: np.ndarray
+
+    def keys(self, delay_min: np.ndarray) -> np.ndarray:
+        return self.key_base + (self.whole_min + delay_min[self.flight]) // 60
+
+
 class DCBProblem:
     """Flights, their sector entries (minutes since 00:00 UTC of the first day) and hourly capacities."""
 
@@ -81,6 +94,8 @@ class DCBProblem:
         self.entry_sector = e["_s"].to_numpy()
         self.entry_min = ((e["entry_ts"] - day0).dt.total_seconds(fractional=True) / 60).to_numpy()
         self.entry_dur_min = ((e["exit_ts"] - e["entry_ts"]).dt.total_seconds(fractional=True) / 60).to_numpy()
+        # whole delays only: ⌊(m + d)/60⌋ = ⌊(⌊m⌋ + d)/60⌋, so keys need only integer arithmetic
+        self.entry_whole_min = np.floor(self.entry_min).astype(np.int64)
         self.n_flights, self.n_sectors = len(self.flight_ids), len(self.sectors)
         # the hour grid covers two days (FCFS delays are not capped at MaxDelay) and always one spare
         # hour after the last reachable one, so that k1 + 1 below stays inside its sector's block
@@ -88,6 +103,9 @@ class DCBProblem:
         self.sector_capacity = np.array([capacity_per_h[s] for s in self.sectors], dtype=np.int64)
         self.capacity = np.repeat(self.sector_capacity, self.n_hours)  # [sector*hour], constant over the day
         self.relevant = self._entries_that_can_be_hot()
+        # the learners evaluate every step: their entries' arrays gathered once, not at every call
+        self._relevant_entries = self._entry_arrays(self.relevant)
+        self._all_entries = self._entry_arrays(slice(None))
         cost = flights["aircraft_class"].replace_strict(DELAY_COST_EUR_PER_MIN, return_dtype=pl.Float64).to_numpy()
         self.delay_weight = cost / AVG_DELAY_COST_EUR_PER_MIN  # DC per minute of delay, in average-cost minutes
 
@@ -104,23 +122,27 @@ class DCBProblem:
         over = np.concatenate([[0], np.cumsum(most > self.capacity)])  # over[k]: overloadable keys before k
         return np.nonzero(over[k1 + 1] - over[k0] > 0)[0]
 
+    def _entry_arrays(self, idx) -> "_Entries":
+        return _Entries(self.entry_flight[idx], self.entry_sector[idx] * self.n_hours, self.entry_whole_min[idx], self.entry_dur_min[idx])
+
     def entry_keys(self, delay_min: np.ndarray, idx=slice(None)) -> np.ndarray:
-        hour = ((self.entry_min[idx] + delay_min[self.entry_flight[idx]]) // 60).astype(np.int64)
-        return self.entry_sector[idx] * self.n_hours + hour
+        """key = sector · n_hours + ⌊(entry minute + d_i) / 60⌋ of every entry (whole-minute delays)."""
+        return self._entry_arrays(idx).keys(delay_min)
 
     def evaluate(self, delay_min: np.ndarray, all_entries: bool = False) -> Evaluation:
         """Hotspots for a delay vector; `all_entries` also counts entries that can never be in a hotspot."""
-        idx = slice(None) if all_entries else self.relevant
-        key = self.entry_keys(delay_min, idx)
+        e = self._all_entries if all_entries else self._relevant_entries
+        key = e.keys(delay_min)
         if all_entries and (key % self.n_hours).max() >= self.n_hours - 1:
             raise ValueError(f"delays of up to {delay_min.max()} min run past the problem's {self.n_hours}-hour grid")
         counts = np.bincount(key, minlength=self.capacity.size)
         hot = counts > self.capacity
         entry_hot = hot[key]
-        flight = self.entry_flight[idx]
-        h = np.bincount(flight, weights=entry_hot, minlength=self.n_flights)
-        tdc = np.bincount(flight, weights=entry_hot * self.entry_dur_min[idx], minlength=self.n_flights)
-        return Evaluation(counts, hot, key, entry_hot, h.astype(np.int64), tdc)
+        hot_flight = e.flight[entry_hot]
+        h = np.bincount(hot_flight, minlength=self.n_flights)  # h_i: hot entries per flight
+        # TDC_i: their minutes inside (bincount of no entries at all returns int zeros, hence the cast)
+        tdc = np.bincount(hot_flight, weights=e.dur_min[entry_hot], minlength=self.n_flights).astype(np.float64, copy=False)
+        return Evaluation(counts, hot, key, entry_hot, h, tdc)
 
     def movers(self, delay_min: np.ndarray, ev: Evaluation) -> np.ndarray:
         """[flight] 1 if one of its hot entries is among the `demand - capacity` entries of that hotspot
@@ -152,14 +174,15 @@ class DCBProblem:
         each entry that changed sector-hour, is credited the congestion its leaving removed from the old
         one (its own minutes there, or the whole hotspot's minutes if it was the entry that cleared it)
         and charged what its arrival added to the new one. Exact for one entry per flight and sector-hour."""
+        e = self._relevant_entries
         change = before.entry_key != after.entry_key
-        moved, k0, k1 = self.relevant[change], before.entry_key[change], after.entry_key[change]
-        dur, count = self.entry_dur_min[moved], after.counts
-        inside = np.bincount(after.entry_key, weights=self.entry_dur_min[self.relevant], minlength=self.capacity.size)  # minutes per sector-hour
+        k0, k1 = before.entry_key[change], after.entry_key[change]
+        dur, count = e.dur_min[change], after.counts
+        inside = np.bincount(after.entry_key, weights=e.dur_min, minlength=self.capacity.size)  # minutes per sector-hour
         cap0, cap1 = self.capacity[k0], self.capacity[k1]
         removed = (count[k0] + 1 > cap0) * (inside[k0] + dur) - (count[k0] > cap0) * inside[k0]
         added = (count[k1] > cap1) * inside[k1] - (count[k1] - 1 > cap1) * (inside[k1] - dur)
-        congestion = np.bincount(self.entry_flight[moved], weights=removed - added, minlength=self.n_flights)
+        congestion = np.bincount(e.flight[change], weights=removed - added, minlength=self.n_flights)
         return AVG_DELAY_COST_EUR_PER_MIN * congestion - LAMBDA * self.delay_weight * added_min
 
 

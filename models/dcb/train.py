@@ -106,11 +106,11 @@ def run_episode(problem: DCBProblem, learner, level: Level, eps: float, rng: np.
     """One episode from zero delays; returns the final delays [min] and the hotspots they leave."""
     delay = np.zeros(problem.n_flights, dtype=np.int64)
     ev = problem.evaluate(delay)
+    state = local_state(problem, level, delay, ev)
     for _ in range(problem.max_delay_min // level.action_step):
         agents = np.nonzero((ev.hotspots_per_flight > 0) & (delay + level.action_step <= problem.max_delay_min))[0]
         if agents.size == 0:
             break
-        state = local_state(problem, level, delay, ev)
         q = learner.values(state, agents, ev)
         greedy = (q[:, 1] > q[:, 0]).astype(np.int64)  # ties hold: no delay without a reason
         explore = rng.random(agents.size) < eps
@@ -118,9 +118,11 @@ def run_episode(problem: DCBProblem, learner, level: Level, eps: float, rng: np.
         action[agents] = np.where(explore, rng.integers(0, 2, agents.size), greedy)
         delay, before = delay + action * level.action_step, ev
         ev = problem.evaluate(delay)
+        next_state = local_state(problem, level, delay, ev)
         if learn:
             r = problem.reward(delay, ev) if reward == "thesis" else problem.difference_reward(action * level.action_step, before, ev)
-            learner.update(state, action, r, local_state(problem, level, delay, ev), agents)
+            learner.update(state, action, r, next_state, agents)
+        state = next_state
     return delay, ev.hotspots
 
 

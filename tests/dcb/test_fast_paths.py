@@ -1,0 +1,78 @@
+"""The learners' fast paths give exactly what the straightforward versions they replaced gave.
+
+`evaluate` (integer keys, entry arrays gathered once, per-flight sums over hot entries only) against
+the former full evaluation (float keys, weighted sums over every entry); `peer_edges` (sort-based
+unique) against np.unique; `row_max` against max(axis=1); and whole training runs against delays
+recorded with the code before these speed-ups (same seed -> same delays, bit for bit).
+"""
+
+import numpy as np
+import pytest
+
+from models.dcb.cmarl import peer_edges
+from models.dcb.mirl import row_max
+from models.dcb.train import train
+
+
+def former_evaluate(p, delay_min, all_entries):
+    """The evaluation as it was before the speed-ups: float minutes, bincount weighted over every entry."""
+    idx = slice(None) if all_entries else p.relevant
+    key = p.entry_sector[idx] * p.n_hours + ((p.entry_min[idx] + delay_min[p.entry_flight[idx]]) // 60).astype(np.int64)
+    counts = np.bincount(key, minlength=p.capacity.size)
+    hot = counts > p.capacity
+    entry_hot = hot[key]
+    flight = p.entry_flight[idx]
+    h = np.bincount(flight, weights=entry_hot, minlength=p.n_flights).astype(np.int64)
+    tdc = np.bincount(flight, weights=entry_hot * p.entry_dur_min[idx], minlength=p.n_flights)
+    return counts, hot, key, entry_hot, h, tdc
+
+
+def former_peer_edges(ev, flight_of_entry, n_flights):
+    hot = np.nonzero(ev.entry_hot)[0]
+    key, flight = ev.entry_key[hot], flight_of_entry[hot]
+    same = key[:, None] == key[None, :]  # every pair of hot entries in one sector-hour
+    a, b = np.nonzero(np.triu(same, 1))
+    i, j = np.minimum(flight[a], flight[b]), np.maximum(flight[a], flight[b])
+    pair = np.unique(i[i != j] * n_flights + j[i != j])
+    return pair // n_flights, pair % n_flights
+
+
+@pytest.mark.parametrize("all_entries", [False, True])
+def test_evaluate_equals_the_former_full_evaluation(small_case, all_entries):
+    p, rng = small_case, np.random.default_rng(0)
+    hot_seen = 0
+    for _ in range(60):
+        # delays over the whole range, and mostly-zero vectors like the early steps of an episode
+        delay = rng.integers(0, p.max_delay_min + 1, p.n_flights) * (rng.random(p.n_flights) < rng.choice([0.05, 0.5, 1.0]))
+        ev = p.evaluate(delay, all_entries=all_entries)
+        fast = (ev.counts, ev.hot, ev.entry_key, ev.entry_hot, ev.hotspots_per_flight, ev.congested_min)
+        for got, want in zip(fast, former_evaluate(p, delay, all_entries)):
+            assert got.dtype == want.dtype and np.array_equal(got, want)
+        hot_seen += ev.hotspots
+        i, j = peer_edges(ev, p.entry_flight[p.relevant if not all_entries else slice(None)], p.n_flights)
+        fi, fj = former_peer_edges(ev, p.entry_flight[p.relevant if not all_entries else slice(None)], p.n_flights)
+        assert np.array_equal(i, fi) and np.array_equal(j, fj)
+    assert hot_seen > 0  # the comparison covered hotspots, not only empty pictures
+
+
+def test_row_max_equals_max_over_columns():
+    q = np.random.default_rng(1).normal(size=(500, 4))
+    assert np.array_equal(row_max(q), q.max(axis=1)) and np.array_equal(row_max(q[:, :2]), q[:, :2].max(axis=1))
+
+
+# (total delay, Σ delay_i · (i + 1), source) of train(small_case, method, seed=1, episodes=20), recorded
+# with the code before the speed-ups (per-call gathers, np.unique, max(axis=1), float keys)
+RECORDED = {
+    ("MIRL", "thesis", "thesis"): (171, 16310, "best_episode"),
+    ("CMARL", "thesis", "thesis"): (166, 16688, "best_episode"),
+    ("HCMARL", "thesis", "thesis"): (103, 10282, "greedy"),
+    ("HCMARL", "extended", "difference"): (74, 7026, "greedy"),
+    ("sHMIRL", "extended", "difference"): (23, 2245, "greedy"),
+}
+
+
+@pytest.mark.parametrize("method, state, reward", list(RECORDED))
+def test_same_delays_as_before_the_speed_ups(small_case, method, state, reward):
+    r = train(small_case, method, seed=1, episodes=20, state=state, reward=reward)
+    d = r.delay_min
+    assert (int(d.sum()), int((d * np.arange(1, d.size + 1)).sum()), r.source) == RECORDED[(method, state, reward)]

@@ -369,3 +369,22 @@ def test_bad_sampling_requests(era5):
     raises_one_line(sample_weather, era5.head(100), us("2019-01-05T02:00"), one, one, one, match="complete")
     raises_one_line(sample_weather, era5.drop("wind_v_mps"), us("2019-01-05T02:00"), one, one, one, match="wind_v_mps")
     raises_one_line(weather_time_range, era5.head(0), match="empty")
+
+
+def test_grib_reader_then_libsumo_in_one_process_exits_cleanly():
+    """eccodes' bundled libraries loaded before libsumo used to crash the process at exit (double free),
+    e.g. a test session or a Dagster run that reads GRIB weather and then simulates urban traffic."""
+    import subprocess
+    import sys
+
+    repo = DATA.parents[1]
+    code = (
+        "from models.aviation.weather import read_weather\n"
+        f"read_weather({str(GFS)!r})\n"
+        "import libsumo\n"
+        f"libsumo.start(['sumo', '-n', {str(repo / 'data' / 'sumo' / 'bologna_acosta.net.xml.gz')!r}, '--no-step-log'])\n"
+        "libsumo.simulationStep()\n"
+        "libsumo.close()\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], cwd=repo, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, f"exit {done.returncode}: {done.stderr[-500:]}"

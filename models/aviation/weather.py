@@ -181,7 +181,18 @@ def _detect_format(path: Path) -> str:
     )
 
 
+def _libsumo_before_eccodes() -> None:
+    """eccodes' wheels (loaded by cfgrib, also through xarray's backend discovery) put their bundled C
+    libraries (proj, sqlite, krb5, ...) in the global symbol namespace; a libsumo imported after them binds
+    to those copies and the process dies at exit with a double free. Imported first, each keeps its own."""
+    try:
+        import libsumo  # noqa: F401
+    except ImportError:  # no urban system installed: nothing to protect
+        pass
+
+
 def _open_dataset(path: Path, kind: str) -> Any:
+    _libsumo_before_eccodes()
     import xarray as xr  # imported lazily: reading is the only part that needs it
 
     if kind == "grib":
@@ -233,6 +244,7 @@ def _find_coord(ds: Any, names: Sequence[str]) -> str | None:
 
 def _grib_isobaric_names(path: Path) -> list[str]:
     """Short names of the isobaric messages of a GRIB file (for error messages only)."""
+    _libsumo_before_eccodes()
     import eccodes
 
     names: set[str] = set()

@@ -20,6 +20,9 @@ STEPS = 60
 SINGLE_TRAJECTORIES = 20
 TARGET_RATIO = 50.0
 TARGET_STEPS_PER_S = 250_000
+# As the trajectory assets do: with 2 intra-op threads, any other load on a 2-core machine makes OpenMP's
+# threads wait on each other (measured here: 40-50k state-steps/s with 2 threads vs 300-365k with 1, load ~3).
+THREADS = 1
 
 
 def _env_and_policy():
@@ -44,7 +47,7 @@ def _run(env, policy, n: int) -> int:
 
 
 def test_batched_rollouts_vs_one_at_a_time():
-    torch.set_num_threads(2)
+    torch.set_num_threads(THREADS)
     env, policy = _env_and_policy()
     _run(env, policy, 64)  # warm-up
     t0 = time.perf_counter()
@@ -65,7 +68,7 @@ def test_gail_iteration_time():
     from models.trajectory.nets import Selector
     from models.trajectory.task import Task
 
-    torch.set_num_threads(2)
+    torch.set_num_threads(THREADS)
     env, _ = _env_and_policy()
     n = 20_000
     g = torch.Generator().manual_seed(0)

@@ -30,6 +30,8 @@ class TrainingConfig(dg.Config):
                                 description="col_marl, i_marl and/or ch3_dqn_cnn (chapter 3: speed actions, DQN + CNN over the collision matrix)")
     ch3_scenarios: list[str] | None = Field(default=None, description="scenarios ch3_dqn_cnn trains on (None: the profile's; demo: sc1)")
     workers: int | None = Field(default=None, description="episodes run in parallel, one libsumo process each (None: usable cores)")
+    gradient_steps: int | None = Field(
+        default=None, description="gradient steps after each episode (None: 40 for col_marl / i_marl, 10 for ch3_dqn_cnn; the thesis does not say)")
     leader_guard: bool = Field(
         default=False,
         description="not in the thesis: SUMO caps each agent vehicle's speed at the safe speed behind its leader on the same "
@@ -61,10 +63,12 @@ def urban_training(context: dg.AssetExecutionContext, config: TrainingConfig, ur
                 for seed in seeds:
                     t = time.perf_counter()
                     log = lambda msg: context.log.info(f"{scenario} seed {seed}: {msg}")  # noqa: E731
-                    params, rows = col_marl.train(copies, agents, METHODS_RL[method], episodes, seed, pool, log, config.leader_guard)
+                    params, rows = col_marl.train(copies, agents, METHODS_RL[method], episodes, seed, pool, log, config.leader_guard,
+                                                    config.gradient_steps)
                     path = artifact_path("models", f"urban_{scenario}_{method}_seed{seed}.pt")
                     torch.save({"params": params, "agents": agents, "variant": METHODS_RL[method], "scenario": scenario,
-                                "seed": seed, "episodes": episodes, "leader_guard": config.leader_guard}, path)
+                                "seed": seed, "episodes": episodes, "leader_guard": config.leader_guard,
+                                "gradient_steps": config.gradient_steps}, path)
                     timings[f"{scenario}/{method}/seed{seed}"] = round(time.perf_counter() - t, 1)
                     frames.append(pl.DataFrame(rows).with_columns(
                         scenario=pl.lit(scenario), method=pl.lit(method), seed=pl.lit(seed, pl.Int64), model_path=pl.lit(str(path))))

@@ -46,6 +46,7 @@ PATH, CONFLICT = -1.0, -5.0  # cell values of §3.4.1
 SAFE_DIST_M, BETA1 = 50.0, 3.0  # Eq 3.2, 3.3
 VEL_MAX_MPS = max(SPEEDS_MPS)
 BUFFER_SIZE = 15_000  # per route agent (§3.5.3)
+GRADIENT_STEPS_PER_EPISODE = 10  # not in the thesis; its CNN steps cost ~6x col-MARL's, and 10 is collision-free on Sc1
 INDIVIDUAL_DIM = 4
 STATE_DIM = INDIVIDUAL_DIM + GRID * GRID
 

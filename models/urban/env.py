@@ -20,6 +20,10 @@ Terminal rewards: -L on a collision or a teleport; +L when the vehicle has cross
 From there it drives its last road under a fixed rule (max acceleration up to vel_max, §4.3.1) with
 SUMO's safety checks back on, and it no longer is a PettingZoo agent.
 
+safe_dist (Eq 4.5-4.7, i-MARL's Eq 3.3): the thesis's 20 m on every road by default (SAFE_DIST_RULE);
+"headway" and "stopping" make it grow with speed (measured: no fewer collisions after the demo budget, see
+docs/urban.md).
+
 leader_guard=True (not in the thesis, off by default) lets SUMO cap each vehicle's speed at the safe
 speed behind its leader on the same lane: rear-end collisions cannot happen, the agents only have to
 learn the crossings (the unsignalized-intersection problem itself).
@@ -37,10 +41,16 @@ from models.urban.scenarios import ACTIONS_MPS2
 from models.urban.sim import ACTION_S, SPEED_MODE_FREE, SPEED_MODE_LEADER_GUARD, ScenarioFiles, Simulation
 
 GOAL_REWARD = 1000.0  # L of Eq 4.3 (not given; "not sensitive"): a second of delay must cost more ((1 - γ) L = 10) than Eq 4.6 saves by stopping (c2 + f(v) ≤ 6)
-SAFE_DIST_M = 20.0  # safe_dist of Eq 4.5-4.7
+SAFE_DIST_M = 20.0  # safe_dist of Eq 4.5-4.7 (thesis); the floor of the speed-dependent rules below
+# "thesis": SAFE_DIST_M on every road; "headway": max(SAFE_DIST_M, vel x SAFE_HEADWAY_S); "stopping": max(SAFE_DIST_M,
+# vel x ACTION_S + vel² / (2 x 5 m/s²)), the distance a vehicle covers while its action is held then braking at Table 4.1's max
+SAFE_DIST_RULE = "thesis"
+SAFE_HEADWAY_S = 2.0
+MAX_BRAKE_MPS2 = 5.0
 C1, C2, C3 = 0.2, 5.0, 0.4  # Eq 4.5, 4.6, 4.7
 BETA1, BETA2 = 3.0, 1.0  # Eq 3.2, 3.3 (i-MARL)
 MIN_FVEH_DIST_M = 1.0  # floor of fveh_dist in f(d) (Eq 4.5, 4.7; undefined at 0): one near step costs at most ~0.3 L
+MAX_F_D = SAFE_DIST_M / MIN_FVEH_DIST_M  # f(d) <= 20 whatever the rule: a longer safe_dist must not make crashing cheaper than following
 INTER_TIME_S = 1.5  # two vehicles reaching a junction closer in time than this are predicted to collide
 POS_SCALE_M, LEADER_SCALE_M = 200.0, 200.0
 STATE_DIM = {"col": 6, "ind": 4}
@@ -60,13 +70,26 @@ def junction_terms(junction: np.ndarray, road: np.ndarray, dist_m: np.ndarray, s
     return col_term, density
 
 
-def reward(variant: str, speed: np.ndarray, vmax: float, fveh_dist: np.ndarray, col_term: np.ndarray) -> np.ndarray:
+def safe_dist(speed: np.ndarray, rule: str | None = None) -> np.ndarray:
+    """safe_dist of Eq 4.5-4.7 (and Eq 3.3 for i-MARL) per vehicle under SAFE_DIST_RULE (or `rule`)."""
+    rule = rule or SAFE_DIST_RULE
+    if rule == "thesis":
+        return np.full(np.shape(speed), SAFE_DIST_M)
+    if rule == "headway":
+        return np.maximum(SAFE_DIST_M, speed * SAFE_HEADWAY_S)
+    if rule == "stopping":
+        return np.maximum(SAFE_DIST_M, speed * ACTION_S + speed**2 / (2 * MAX_BRAKE_MPS2))
+    raise ValueError(f"safe_dist rule {rule!r}: expected thesis, headway or stopping")
+
+
+def reward(variant: str, speed: np.ndarray, vmax: float, fveh_dist: np.ndarray, col_term: np.ndarray, rule: str | None = None) -> np.ndarray:
     """Non-terminal reward r(s, a), vectorised."""
     fv = speed / vmax
-    near = (fveh_dist >= 0) & (fveh_dist < SAFE_DIST_M)
+    sd = safe_dist(speed, rule)
+    near = (fveh_dist >= 0) & (fveh_dist < sd)
     if variant == "ind":
-        return np.where(near, -(BETA2 + fv) * (SAFE_DIST_M - fveh_dist), BETA1 * fv)  # Eq 3.2, 3.3 with C = 1
-    fd = SAFE_DIST_M / np.maximum(np.minimum(fveh_dist, SAFE_DIST_M), MIN_FVEH_DIST_M)
+        return np.where(near, -(BETA2 + fv) * (sd - fveh_dist), BETA1 * fv)  # Eq 3.2, 3.3 with C = 1
+    fd = np.minimum(sd / np.maximum(np.minimum(fveh_dist, sd), MIN_FVEH_DIST_M), MAX_F_D)
     return np.where(
         col_term > 0,
         np.where(near, -(C3 + fv) * fd, -(C2 + fv)),  # Eq 4.7, 4.6

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from models.urban.col_marl import EpisodeJob, RouteAgentsQ, numpy_params, run_episode
-from models.urban.env import GOAL_REWARD, UrbanParallelEnv, junction_terms, reward
+from models.urban.env import GOAL_REWARD, UrbanParallelEnv, junction_terms, reward, safe_dist
 from models.urban.network import UrbanInputError
 from models.urban.sim import ScenarioFiles, Simulation, run_sumo_model
 
@@ -45,6 +45,19 @@ def test_junction_terms_and_reward():
     assert r == pytest.approx([0.5, -(0.2 + 0.5) * 2.0, -(5.0 + 0.5), -(0.4 + 0.5) * 2.0])  # Eq 4.4, 4.5, 4.6, 4.7
     assert reward("ind", np.array([20.0]), 40.0, np.array([10.0]), np.array([1.0])) == pytest.approx([-(1.0 + 0.5) * 10.0])
 
+
+
+def test_speed_dependent_safe_dist():
+    v = np.array([0.0, 10.0, 30.0])
+    assert safe_dist(v).tolist() == [20.0, 20.0, 20.0]  # the thesis's constant is the default
+    assert safe_dist(v, "headway").tolist() == [20.0, 20.0, 60.0]  # 2 s headway, never below 20 m
+    assert safe_dist(v, "stopping").tolist() == [20.0, 20.0, 30.0 + 90.0]  # 1 s held action + braking at 5 m/s²
+    # 40 m behind a leader at 30 m/s: far for the thesis, near under the stopping rule; f(d) stays capped at 20
+    far, near = (reward("col", np.array([30.0]), 40.0, np.array([40.0]), np.array([0.0]), rule) for rule in ("thesis", "stopping"))
+    assert far == pytest.approx([0.75]) and near == pytest.approx([-(0.2 + 0.75) * 3.0])
+    assert reward("col", np.array([30.0]), 40.0, np.array([0.5]), np.array([0.0]), "stopping") == pytest.approx([-(0.2 + 0.75) * 20.0])
+    with pytest.raises(ValueError, match="safe_dist rule"):
+        safe_dist(v, "nope")
 
 def test_same_seed_same_episode(tmp_path, sc1_net):
     files, routes = make_copy(tmp_path / "c", sc1_net, 20, 80.0)

@@ -3,23 +3,23 @@
 import numpy as np
 import torch
 
-from models.urban.col_marl import RouteAgentsQ, dqn_update, run_episode, train
+from models.urban.col_marl import RouteAgentsQ, dqn_update, kit, run_episode, train
 from models.urban.parallel import EpisodePool
 from urban_fixtures import make_copy
 
 
-def _train(files, agents, variant, seed, episodes=3):
+def _train(files, agents, variant, seed, episodes=3, gradient_steps=None):
     with EpisodePool(1, run_episode) as pool:
-        return train([(files, 15)], agents, variant, episodes, seed, pool, log=lambda _: None)
+        return train([(files, 15)], agents, variant, episodes, seed, pool, log=lambda _: None, gradient_steps=gradient_steps)
 
 
 def test_same_seed_same_policy_and_log(tmp_path, sc1_net):
     files, routes = make_copy(tmp_path / "c", sc1_net, 15, 60.0)
     agents = [f"{r['route_id']}:{c}" for r in routes for c in ("car", "heavy")]
-    (pa, ra), (pb, rb) = _train(files, agents, "col", 0), _train(files, agents, "col", 0)
+    (pa, ra), (pb, rb) = (_train(files, agents, "col", 0, gradient_steps=10) for _ in range(2))  # 10 steps: faster, same code path
     assert all(np.array_equal(pa[k], pb[k]) for k in pa)
     np.testing.assert_array_equal([r["loss"] for r in ra], [r["loss"] for r in rb])  # NaN == NaN here
-    pc, _ = _train(files, agents, "col", 1)
+    pc, _ = _train(files, agents, "col", 1, gradient_steps=10)
     assert not np.array_equal(pa["w1"], pc["w1"])
     assert {r["episode"] for r in ra} == {0, 1, 2} and len(ra) == 3 * len(agents)
     assert ra[0]["epsilon"] == 0.9 and ra[-1]["epsilon"] < 0.9
@@ -46,3 +46,13 @@ def test_each_route_agent_learns_only_from_its_own_data():
     after = q.state_dict()
     assert torch.equal(after["w1"][1], before["w1"][1])  # agent 1 had no data: untouched
     assert not torch.equal(after["w1"][0], before["w1"][0])
+
+
+def test_gradient_steps_per_episode_are_configurable(tmp_path, sc1_net):
+    assert kit("col").gradient_steps == kit("ind").gradient_steps == 40 and kit("ch3").gradient_steps == 10
+    files, routes = make_copy(tmp_path / "c", sc1_net, 15, 60.0)
+    agents = [f"{r['route_id']}:{c}" for r in routes for c in ("car", "heavy")]
+    (one, _), (default, _) = _train(files, agents, "col", 0, episodes=1, gradient_steps=1), _train(files, agents, "col", 0, episodes=1)
+    init = RouteAgentsQ(len(agents), 6, torch.Generator().manual_seed(0)).w1.detach().numpy()
+    # one Adam step moves each trained weight by about lr; 40 steps move them further
+    assert np.abs(default["w1"] - init).max() > 5 * np.abs(one["w1"] - init).max() > 0

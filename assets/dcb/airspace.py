@@ -5,6 +5,7 @@ from pathlib import Path
 import dagster as dg
 from pydantic import Field
 
+from models.dcb.airspace import GridSectorisation
 from models.dcb.experiment import airspace_tables, load_demand, sectorisation
 
 REPO = Path(__file__).resolve().parents[2]
@@ -18,9 +19,9 @@ class AirspaceConfig(dg.Config):
     so6_step_s: float = Field(default=30.0, description="SO6: segments are densified to a point every this many seconds [s]")
     sector_geojson: str | None = Field(default=None, description="GeoJSON FeatureCollection of sector polygons with properties "
                                        "name, fl_lower, fl_upper (and optional capacity_per_h); None: the grid below")
-    cell_lat_deg: float = Field(default=1.0, description="grid: cell height [deg latitude]")
-    cell_lon_deg: float = Field(default=1.15, description="grid: cell width [deg longitude]")
-    fl_edges: list[float] = Field(default=[285.0, 355.0, 375.0, 480.0], description="grid: flight-level band edges (FL)")
+    cell_lat_deg: float = Field(default=GridSectorisation.cell_lat_deg, description="grid: cell height [deg latitude]")
+    cell_lon_deg: float = Field(default=GridSectorisation.cell_lon_deg, description="grid: cell width [deg longitude]")
+    fl_edges: list[float] = Field(default=list(GridSectorisation.fl_edges), description="grid: flight-level band edges (FL)")
     box: list[float] | None = Field(default=None, description="grid: [lat_min, lat_max, lon_min, lon_max] [deg]; None: the Swiss box")
 
 

@@ -18,7 +18,8 @@ import pytest
 import benchlib as b
 from models.dcb import cmarl
 from models.dcb.cmarl import CoordinatedQ
-from models.dcb.experiment import airspace_tables, build_problem, load_demand, sectorisation
+from models.dcb.airspace import GridSectorisation
+from models.dcb.experiment import airspace_tables, build_problem, load_demand
 from models.dcb.mirl import IndependentQ
 from models.dcb.optimum import solve_optimum
 from models.dcb.train import EPISODES, GROUND, run_episode, train
@@ -70,7 +71,7 @@ class LoopCoordinatedQ(CoordinatedQ):
 @pytest.fixture(scope="module")
 def swiss_tables():
     points, flights, _, _ = load_demand(SWISS)
-    return airspace_tables(points, flights, sectorisation(None, 1.0, 1.15, [285.0, 355.0, 375.0, 480.0], None))
+    return airspace_tables(points, flights, GridSectorisation())
 
 
 @pytest.fixture(scope="module")

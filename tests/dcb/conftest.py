@@ -5,7 +5,8 @@ from pathlib import Path
 import polars as pl
 import pytest
 
-from models.dcb.experiment import airspace_tables, build_problem, load_demand, sectorisation
+from models.dcb.airspace import GridSectorisation
+from models.dcb.experiment import airspace_tables, build_problem, load_demand
 
 SWISS = Path(__file__).resolve().parents[2] / "data" / "traffic_samples" / "switzerland_2018-08-01.parquet"
 
@@ -13,7 +14,7 @@ SWISS = Path(__file__).resolve().parents[2] / "data" / "traffic_samples" / "swit
 @pytest.fixture(scope="session")
 def swiss_tables():
     points, flights, _, _ = load_demand(SWISS)
-    return airspace_tables(points, flights, sectorisation(None, 1.0, 1.15, [285.0, 355.0, 375.0, 480.0], None))
+    return airspace_tables(points, flights, GridSectorisation())
 
 
 @pytest.fixture(scope="session")

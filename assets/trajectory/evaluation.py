@@ -33,7 +33,7 @@ def trajectory_evaluation(context: dg.AssetExecutionContext, config: TrajectoryE
     from models.trajectory.evaluate import (Results, evaluate_baselines, evaluate_model, growth_table, metrics_table,
                                             posterior_table, predictions_table)
     from models.trajectory.model import TrajectoryModel
-    from models.trajectory.report import markdown_table
+    from models.markdown import markdown_table
     from models.trajectory.training import prepare
 
     torch.set_num_threads(1)  # small nets; with 2 threads on a busy 2-core machine OpenMP contention made training ~10x slower

@@ -39,7 +39,7 @@ def trajectory_models(context: dg.AssetExecutionContext, config: TrajectoryModel
     import torch
 
     from models.trajectory.ppo import DISCRIMINATORS
-    from models.trajectory.report import markdown_table
+    from models.markdown import markdown_table
     from models.trajectory.training import Budget, catalogue_row, prepare, runs, train_model
 
     torch.set_num_threads(1)  # small nets; with 2 threads on a busy 2-core machine OpenMP contention made training ~10x slower

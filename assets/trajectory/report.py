@@ -15,7 +15,8 @@ def trajectory_report(context: dg.AssetExecutionContext, trajectory_metrics: pl.
                       applearn_results: pl.DataFrame):
     from models.trajectory.applearn_eval import table_6_1
     from models.trajectory.recording import points_for_recording, write_location_fix_mcap, write_prediction_recording
-    from models.trajectory.report import growth_figure, growth_rates, markdown_table, thesis_tables
+    from models.markdown import markdown_table
+    from models.trajectory.report import growth_figure, growth_rates, thesis_tables
 
     files, meta = [], {}
     tables = {"table_6_1": markdown_table(table_6_1(applearn_results)), **thesis_tables(trajectory_metrics, mode_posteriors)}

@@ -8,6 +8,7 @@ from pydantic import Field
 
 from assets.profiles import default_profile
 from assets.urban.training import default_workers, load_policies
+from models.markdown import markdown_table
 from models.urban.experiments import run_job
 from warehouse.artifacts import artifact_path, save_plot
 
@@ -39,7 +40,7 @@ def urban_results(context: dg.AssetExecutionContext, config: EvaluationConfig, u
     summary = df.group_by("scenario", "method", maintain_order=True).agg(
         pl.len().alias("runs"), pl.col("avg_travel_time_s").mean(), pl.col("avg_speed_mps").mean(),
         pl.col("collisions").sum(), pl.col("teleports").sum(), pl.col("success").mean())
-    return dg.Output(df, metadata={"summary": dg.MetadataValue.md(_markdown(summary))})
+    return dg.Output(df, metadata={"summary": dg.MetadataValue.md(markdown_table(summary, cell=lambda v: f"{v:.2f}" if isinstance(v, float) else str(v)))})
 
 
 @dg.asset(group_name="urban", description="Thesis tables 3.2, 4.3, 4.4, 4.5, 4.7-4.9 for our runs (mean ± std over copies x seeds).")
@@ -73,9 +74,3 @@ def urban_trajectories(context: dg.AssetExecutionContext, config: EvaluationConf
         context.log.info(f"rerun recording: rerun {rrd}")
     return dg.Output(df, metadata=metadata)
 
-
-def _markdown(df: pl.DataFrame) -> str:
-    cols = df.columns
-    rows = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
-    rows += ["| " + " | ".join(f"{v:.2f}" if isinstance(v, float) else str(v) for v in r) + " |" for r in df.iter_rows()]
-    return "\n".join(rows)

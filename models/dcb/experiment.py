@@ -10,6 +10,7 @@ from models.aviation.ingest import summarise
 from models.dcb.airspace import GeoJSONSectorisation, GridSectorisation, sector_entries
 from models.dcb.cmarl import peer_edges
 from models.dcb.demand import adsb_demand, so6_demand
+from models.markdown import markdown_table
 from models.dcb.problem import DELAY_COST_EUR_PER_MIN, REGULATED_MIN, DCBProblem, aircraft_class, base_capacities, hotspot_table, scaled_capacities
 
 METRICS = ("avg_delay_min", "regulated_flights", "total_delay_min", "hotspots_left", "gap_to_optimum", "runtime_s")
@@ -127,9 +128,6 @@ def summary_markdown(summ: pl.DataFrame, metrics=("avg_delay_min", "regulated_fl
         t = summ.filter(pl.col("metric") == m)
         if t.is_empty():
             continue
-        out += [f"**{m}** (over seeds)", "", "| case | method | n | mean | std | median | IQR |", "|---|---|---|---|---|---|---|"]
-        fmt = lambda v: "" if v is None else f"{v:.3f}"  # noqa: E731
-        out += [f"| {r['case']} | {r['method']} | {r['n_seeds']} | {fmt(r['mean'])} | {fmt(r['std'])} | {fmt(r['median'])} | {fmt(r['iqr'])} |"
-                for r in t.iter_rows(named=True)]
-        out.append("")
+        rows = t.select("case", "method", n="n_seeds", mean="mean", std="std", median="median", IQR="iqr")
+        out += [f"**{m}** (over seeds)", "", markdown_table(rows, cell=lambda v: "" if v is None else f"{v:.3f}" if isinstance(v, float) else str(v))]
     return "\n".join(out)

@@ -5,15 +5,11 @@ import io
 import numpy as np
 import polars as pl
 
+from models.markdown import markdown_table
+
 PHASE_COLUMNS = ("climb", "cruise", "descent", "total")
 # EUROCONTROL growth-rate requirements quoted in §7.5.4 (nm per minute of look-ahead)
 REQUIRED_GROWTH_NM_PER_MIN = {"climb": 0.2, "cruise": 0.1, "descent": 0.2}
-
-
-def markdown_table(df: pl.DataFrame) -> str:
-    fmt = lambda v: f"{v:.3g}" if isinstance(v, float) else ("" if v is None else str(v))  # noqa: E731
-    head = "| " + " | ".join(df.columns) + " |\n|" + "---|" * len(df.columns) + "\n"
-    return head + "".join("| " + " | ".join(fmt(v) for v in row) + " |\n" for row in df.iter_rows())
 
 
 def _cell(mean: float, std: float, metric: str) -> str:

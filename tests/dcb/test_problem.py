@@ -67,7 +67,6 @@ def test_integer_program_matches_brute_force(capacity):
     delay, solve_s = solve_optimum(p)
     assert p.evaluate(delay, all_entries=True).hotspots == 0
     assert int(delay.sum()) == brute_force(p) > 0
-    assert solve_s >= 0
     first_come = fcfs(p)  # FCFS resolves every hotspot too, never with less delay than the optimum
     assert p.evaluate(first_come, all_entries=True).hotspots == 0 and first_come.sum() >= delay.sum()
 

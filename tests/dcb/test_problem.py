@@ -64,7 +64,7 @@ def test_integer_program_matches_brute_force(capacity):
     rows = [("f1", "A", 55, 5), ("f2", "A", 56, 5), ("f3", "A", 57, 5), ("f4", "A", 114, 5),
             ("f1", "B", 58, 5), ("f4", "B", 59, 5), ("f2", "B", 118, 5)]
     p = make_problem(rows, capacity, max_delay_min=6)
-    delay, solve_s = solve_optimum(p)
+    delay, _ = solve_optimum(p)
     assert p.evaluate(delay, all_entries=True).hotspots == 0
     assert int(delay.sum()) == brute_force(p) > 0
     first_come = fcfs(p)  # FCFS resolves every hotspot too, never with less delay than the optimum

@@ -23,7 +23,7 @@ $(DAGSTER_HOME)/dagster.yaml: dagster.yaml
 	cp dagster.yaml $@
 
 demo: $(VENV)/.installed $(DAGSTER_HOME)/dagster.yaml
-	for group in $(DEMO_GROUPS); do $(VENV)/bin/dagster asset materialize -m pipelines.definitions --select "group:$$group" || exit 1; done
+	$(PY) -m pipelines.materialize $(DEMO_GROUPS)
 	$(PY) -m warehouse tables
 
 test: $(VENV)/.installed

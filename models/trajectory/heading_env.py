@@ -20,6 +20,7 @@ import numpy as np
 import polars as pl
 import torch
 
+from models.trajectory.data import time_normalised
 from models.trajectory.env import WeatherCube
 from models.trajectory.metrics import haversine_km, matched_errors
 
@@ -284,10 +285,7 @@ def resample_flights(tracks: pl.DataFrame, n_points: int) -> tuple[list[str], np
     """Every flight at n_points equidistant in (normalised) time: (flight ids, (F, n_points, 2) lon/lat)."""
     tracks = tracks.sort("flight_id", "ts")
     sizes = tracks.group_by("flight_id", maintain_order=True).len()
-    lengths = sizes["len"].to_numpy().astype(np.int64)
-    offsets = np.cumsum(lengths) - lengths
-    rows = offsets[:, None] + np.round(np.linspace(0.0, 1.0, n_points) * (lengths[:, None] - 1)).astype(np.int64)
-    lon_lat = tracks.select("lon", "lat").to_numpy()[rows]
+    lon_lat = time_normalised(tracks.select("lon", "lat").to_numpy(), sizes["len"].to_numpy().astype(np.int64), n_points)
     return sizes["flight_id"].to_list(), lon_lat
 
 

@@ -44,13 +44,18 @@ def posterior_tables(posteriors: pl.DataFrame) -> dict[str, str]:
 
 
 def growth_rates(growth: pl.DataFrame) -> pl.DataFrame:
-    """Least-squares slope (nm/min) of each error against look-ahead minutes, with the EUROCONTROL requirement."""
+    """Least-squares slope (nm/min) of each error against look-ahead minutes, with the EUROCONTROL requirement.
+
+    Each minute is weighted by its number of roll-outs `n` (the pooled fit over every roll-out's minutes): the
+    phases differ in length, so the last minutes hold a few long flights only, and with equal weights their
+    errors (often a prediction that has already ended, held at its last point) set the slope."""
     rows = []
     for (method, scheme, phase), g in growth.group_by("method", "scheme", "phase", maintain_order=True):
         m = g["lookahead_min"].to_numpy().astype(float)
         if len(m) < 2:
             continue
-        slope = {k: float(np.polyfit(m, g[k].to_numpy(), 1)[0]) for k in ("rmse_3d_nm", "ate_nm", "cte_nm")}
+        w = np.sqrt(g["n"].to_numpy().astype(float))  # polyfit squares the weights
+        slope = {k: float(np.polyfit(m, g[k].to_numpy(), 1, w=w)[0]) for k in ("rmse_3d_nm", "ate_nm", "cte_nm")}
         rows.append({"method": method, "scheme": scheme, "phase": phase, **{f"{k}_per_min": v for k, v in slope.items()},
                      "required_nm_per_min": REQUIRED_GROWTH_NM_PER_MIN[phase]})
     return pl.DataFrame(rows).sort("phase", "method", "scheme")

@@ -7,12 +7,14 @@ import pytest
 import torch
 
 from models.trajectory.bc import train_bc, train_mode_classifier
+from models.trajectory.data import demonstrations
 from models.trajectory.env import DAY0_S
-from models.trajectory.evaluate import evaluate_model, metrics_table
+from models.trajectory.evaluate import evaluate_model, growth_table, metrics_table
 from models.trajectory.metrics import matched_errors
 from models.trajectory.model import TrajectoryModel, TrajectoryModelError, start_day
 from models.trajectory.nets import Policy, Selector
 from models.trajectory.predict import PredictionInputError, main, predict_flights, read_first_states
+from models.trajectory.report import growth_rates
 from models.trajectory.training import Budget, prepare, random_policy_like, train_model
 
 torch.set_num_threads(1)
@@ -41,6 +43,41 @@ def test_matched_errors_units_and_zero():
     assert e["rmse_lat_nm"] == 0 and e["cte_nm"] == 0
     with pytest.raises(ValueError, match="shape"):
         matched_errors(a[:, :2], a)
+
+
+def test_error_growth_rate_is_the_fit_over_every_rollout_minute():
+    """Ten 10-minute roll-outs whose along-track error grows 0.1 nm/min, and one 20-minute roll-out that ends early and
+    is held while the aircraft flies on (+6 nm/min after minute 10): the rate is the least-squares slope over all 120
+    (minute, error) pairs, not over the 20 per-minute means, in which the one long roll-out sets the last 10 points."""
+    key = {"method": "m", "scheme": "MMIL", "seed": 0, "phase": "descent"}
+    rows = [{**key, "lookahead_min": m, "ate": 0.1 * m} for _ in range(10) for m in range(1, 11)]
+    rows += [{**key, "lookahead_min": m, "ate": 0.1 * m + 6.0 * max(0, m - 10)} for m in range(1, 21)]
+    rows = [{**r, "e3d": r["ate"], "cte": 0.0} for r in rows]
+    rate = growth_rates(growth_table(rows))["ate_nm_per_min"][0]
+    pooled = np.polyfit([r["lookahead_min"] for r in rows], [r["ate"] for r in rows], 1)[0]
+    assert rate == pytest.approx(pooled)
+    assert rate < 0.6 * np.polyfit(np.arange(1, 21), growth_table(rows)["ate_nm"].to_numpy(), 1)[0]
+
+
+def test_modes_and_goals_come_from_training_flights_only(aviation_tables):
+    """Move every flight of one cruise cluster to the test split: the training side (mode numbering, goals) is then
+    exactly what it is without those flights, and they are labelled with their route's nearest training mode."""
+    tracks, modes, flights, splits, _ = aviation_tables
+    cruise = modes.filter(pl.col("phase") == "cruise").join(flights.select("flight_id", "route"), on="flight_id")
+    sizes = cruise.group_by("route", "mode").len().filter(pl.len().over("route") >= 2).sort("len", "route", "mode")
+    route, mode = sizes.row(0)[:2]
+    moved = cruise.filter((pl.col("route") == route) & (pl.col("mode") == mode))["flight_id"].to_list()
+    as_test = splits.with_columns(split=pl.when(pl.col("flight_id").is_in(moved)).then(pl.lit("test")).otherwise("split"))
+    train, test = demonstrations(tracks, modes, flights, as_test, "cruise")
+    alone, _ = demonstrations(tracks.filter(~pl.col("flight_id").is_in(moved)), modes, flights, as_test, "cruise")
+    assert (route, mode) not in train.mode_keys and train.mode_keys == alone.mode_keys
+    assert np.array_equal(train.goals, alone.goals) and np.array_equal(train.modes, alone.modes)
+    relabelled = np.isin(test.flight_ids, moved)
+    assert relabelled.any() and all(train.mode_keys[g][0] == route for g in test.modes[relabelled])
+    # a test flight of a cluster that has training flights keeps its cluster
+    kept = cruise.filter(pl.col("flight_id").is_in(test.flight_ids) & ~pl.col("flight_id").is_in(moved))
+    truth = dict(zip(kept["flight_id"], zip(kept["route"], kept["mode"])))
+    assert all(train.mode_keys[g] == truth[f] for f, g in zip(test.flight_ids, test.modes) if f in truth)
 
 
 def test_env_steps_a_batch_and_terminates_at_the_goal(setup):

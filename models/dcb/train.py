@@ -28,7 +28,8 @@ then trains with exploration starting at ε = 0.7. The solution is the greedy (�
 final ground-level policy - or, where that rollout leaves hotspots or more total delay, the best
 ground-level episode met in training (fewest hotspots, then least total delay): an operator keeps
 the best schedule found, and the greedy policy of a short run often still leaves hotspots.
-`TrainResult.source` says which one was returned.
+`TrainResult.source` says which one was returned; `greedy_hotspots` / `greedy_delay_min` always
+describe the greedy rollout, so the policy itself can be judged apart from the fallback.
 """
 
 import time
@@ -37,7 +38,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from models.dcb.cmarl import CoordinatedQ
-from models.dcb.mirl import IndependentQ
+from models.dcb.mirl import LEARNING_RATE, IndependentQ
 from models.dcb.problem import DCBProblem
 
 EPISODES = 15_000  # per level (thesis §5.6.2)
@@ -83,12 +84,14 @@ METHODS = {
 
 @dataclass
 class TrainResult:
-    delay_min: np.ndarray  # [flight] the greedy solution
+    delay_min: np.ndarray  # [flight] the returned solution (see `source`)
     hotspots_left: int
     runtime_s: float
     episodes: int  # over all levels
     curve: np.ndarray  # [episode, 3]: episode, hotspots left and total delay [min], every 50th training episode
     source: str  # "greedy" (rollout of the final policy) or "best_episode" (best ground-level training episode)
+    greedy_hotspots: int  # hotspots left by the greedy rollout of the final policy (whatever was returned)
+    greedy_delay_min: int  # its total delay
 
 
 def epsilon(episode: int, start: float, episodes: int) -> float:
@@ -126,22 +129,24 @@ def run_episode(problem: DCBProblem, learner, level: Level, eps: float, rng: np.
     return delay, ev.hotspots
 
 
-def _make(learner_cls, problem: DCBProblem, n_states: int):
+def _make(learner_cls, problem: DCBProblem, n_states: int, lr: float):
     if learner_cls is CoordinatedQ:
-        return CoordinatedQ(problem.n_flights, n_states, problem.entry_flight[problem.relevant])
-    return IndependentQ(problem.n_flights, n_states)
+        return CoordinatedQ(problem.n_flights, n_states, problem.entry_flight[problem.relevant], lr=lr)
+    return IndependentQ(problem.n_flights, n_states, lr=lr)
 
 
 def train(problem: DCBProblem, method: str, seed: int, episodes: int = EPISODES, log=None, state: str = "thesis",
-          reward: str = "thesis") -> TrainResult:
+          reward: str = "thesis", learning_rate: float = LEARNING_RATE) -> TrainResult:
     """Train `method` on `problem` (`episodes` per level) and return its solution (greedy rollout or best episode).
 
     state: "thesis" (d_i, h_i) or "extended" (d_i, h_i, x_i), see `local_state`; reward: "thesis" (Eq 5.2-5.4
-    per flight) or "difference" (`DCBProblem.difference_reward`)."""
+    per flight) or "difference" (`DCBProblem.difference_reward`); learning_rate: η of Eq 5.6 / 5.7 (thesis 0.01)."""
     if state not in STATES:
         raise ValueError(f"unknown DCB local state {state!r}: expected one of {', '.join(STATES)}")
     if reward not in REWARDS:
         raise ValueError(f"unknown DCB reward {reward!r}: expected one of {', '.join(REWARDS)}")
+    if not 0 < learning_rate <= 1:
+        raise ValueError(f"DCB learning rate {learning_rate} is outside (0, 1]")
     learner_cls, abstract = METHODS[method]
     ground = replace(GROUND, n_extra=STATES[state])
     abstract = abstract and replace(abstract, n_extra=STATES[state])
@@ -152,7 +157,7 @@ def train(problem: DCBProblem, method: str, seed: int, episodes: int = EPISODES,
     learner, best, n = None, (np.inf, np.inf, None), 0
     for level, eps0 in levels:
         n_states = level.n_states(problem.max_delay_min)
-        learner = _make(learner_cls, problem, n_states) if learner is None else learner.transferred(n_states, abstract.state_map(problem.max_delay_min))
+        learner = _make(learner_cls, problem, n_states, learning_rate) if learner is None else learner.transferred(n_states, abstract.state_map(problem.max_delay_min))
         for e in range(episodes):
             delay, hot = run_episode(problem, learner, level, epsilon(e, eps0, episodes), rng, reward=reward)
             if level is ground and (hot, delay.sum()) < best[:2]:
@@ -163,7 +168,7 @@ def train(problem: DCBProblem, method: str, seed: int, episodes: int = EPISODES,
                     log(f"{method} seed {seed} level {level}: episode {e}/{episodes}, hotspots left {hot}, total delay {delay.sum()} min")
             n += 1
     delay, hot = run_episode(problem, learner, ground, 0.0, rng, learn=False)
-    source = "greedy"
+    greedy, source = (int(hot), int(delay.sum())), "greedy"
     if (hot, delay.sum()) > best[:2]:
         (hot, _, delay), source = best, "best_episode"
-    return TrainResult(delay, int(hot), time.perf_counter() - started, episodes * len(levels), np.asarray(curve), source)
+    return TrainResult(delay, int(hot), time.perf_counter() - started, episodes * len(levels), np.asarray(curve), source, *greedy)

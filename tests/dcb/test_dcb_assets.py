@@ -39,7 +39,8 @@ def test_dcb_assets_materialise_on_a_slice(tmp_path):
     assert summ["n_seeds"] == 2 and summ["mean"] == res.filter(pl.col("method") == "MIRL")["total_delay_min"].mean()
     checks = {e.check_name: e.passed for e in result.get_asset_check_evaluations()}
     assert checks["demand_rows_accounted"] and checks["optimum_is_lower_bound"] and checks["entries_consistent"]
-    
+    runs = result.asset_materializations_for_node("dcb_delays")[0].metadata["runs"].data  # greedy policy beside what was returned
+    assert len(runs) == 4 and all(r["solution"] == "best_episode" or r["greedy_total_delay_min"] == r["total_delay_min"] for r in runs)
     md = result.asset_materializations_for_node("dcb_results")[0].metadata
     assert any(k.startswith("dcb_demand_capacity_cap90") for k in md) and "dcb_delay_histogram_cap90" in md
     assert "dcb_box_plots" in result.asset_materializations_for_node("dcb_summary")[0].metadata

@@ -105,7 +105,7 @@ class EpisodeJob:
     seed: int  # exploration and SUMO seed of this episode
     n_vehicles: int
     record: bool = False
-    leader_guard: bool = False  # see models.urban.env
+    leader_guard: bool = True  # SUMO's car-following safety on (see models.urban.env)
 
 
 @dataclass
@@ -221,7 +221,7 @@ def train(
     seed: int,
     run_parallel,
     log=print,
-    leader_guard: bool = False,
+    leader_guard: bool = True,
     gradient_steps: int | None = None,
 ) -> tuple[dict, list[dict]]:
     """Train the route agents on the training copies (episode k uses copy k mod len(copies)).

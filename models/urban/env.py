@@ -24,9 +24,13 @@ safe_dist (Eq 4.5-4.7, i-MARL's Eq 3.3): the thesis's 20 m on every road by defa
 "headway" and "stopping" make it grow with speed (measured: no fewer collisions after the demo budget, see
 docs/urban.md).
 
-leader_guard=True (not in the thesis, off by default) lets SUMO cap each vehicle's speed at the safe
-speed behind its leader on the same lane: rear-end collisions cannot happen, the agents only have to
-learn the crossings (the unsignalized-intersection problem itself).
+Car-following safety (leader_guard=True, the default): SUMO caps each agent vehicle's commanded speed at the
+safe speed behind its leader (speed mode 97 with Krauss vehicle types: the speed from which it can still stop
+behind a leader braking hard), and nothing else: no right of way at the junctions, no speed limits, the agent's
+acceleration otherwise executed as is. The thesis's agents learn to cross unsignalized junctions; car following is
+left to the simulator as for its IDM baseline, which "shares the same safety settings as the proposed method (i.e.,
+unsignalized intersections, no right-way rule, and so on)" (§4.3.1; docs/urban.md). leader_guard=False: every
+SUMO check off (speed mode 32), rear-end collisions possible.
 """
 
 import functools
@@ -38,7 +42,7 @@ import numpy as np
 from pettingzoo import ParallelEnv
 
 from models.urban.scenarios import ACTIONS_MPS2
-from models.urban.sim import ACTION_S, SPEED_MODE_FREE, SPEED_MODE_LEADER_GUARD, ScenarioFiles, Simulation
+from models.urban.sim import ACTION_S, SPEED_MODE_CAR_FOLLOWING, SPEED_MODE_FREE, ScenarioFiles, Simulation
 
 GOAL_REWARD = 1000.0  # L of Eq 4.3 (not given; "not sensitive"): a second of delay must cost more ((1 - γ) L = 10) than Eq 4.6 saves by stopping (c2 + f(v) ≤ 6)
 SAFE_DIST_M = 20.0  # safe_dist of Eq 4.5-4.7 (thesis); the floor of the speed-dependent rules below
@@ -107,11 +111,12 @@ def route_agent(vehicle_id: str) -> str:
 class UrbanParallelEnv(ParallelEnv):
     metadata = {"name": "trafficlearn_urban_v0", "render_modes": []}
 
-    def __init__(self, files: ScenarioFiles, variant: str = "col", sumo_seed: int = 0, record: bool = False, leader_guard: bool = False):
+    def __init__(self, files: ScenarioFiles, variant: str = "col", sumo_seed: int = 0, record: bool = False, leader_guard: bool = True):
         if variant not in STATE_DIM:
             raise ValueError(f"variant {variant!r}: expected one of {sorted(STATE_DIM)}")
         self.files, self.variant, self.sumo_seed, self.record = files, variant, sumo_seed, record
-        self.speed_mode = SPEED_MODE_LEADER_GUARD if leader_guard else SPEED_MODE_FREE
+        # Krauss: its safe speed is only the stopping-distance bound behind the leader (IDM's would impose IDM's acceleration law)
+        self.speed_mode, self.driver_model = (SPEED_MODE_CAR_FOLLOWING, "Krauss") if leader_guard else (SPEED_MODE_FREE, "IDM")
         text = Path(files.routes).read_text()
         self.possible_agents = re.findall(r'<vehicle id="([^"]+)"', text)
         self.route_edges = {  # route agent -> edges of its route
@@ -134,7 +139,7 @@ class UrbanParallelEnv(ParallelEnv):
 
     def reset(self, seed: int | None = None, options: dict | None = None):
         self.close()
-        self.sim = Simulation(self.files, model="IDM", seed=self.sumo_seed if seed is None else seed, speed_mode=self.speed_mode)
+        self.sim = Simulation(self.files, model=self.driver_model, seed=self.sumo_seed if seed is None else seed, speed_mode=self.speed_mode)
         self.sim.start()
         self.agents, self.frames, self.finished = [], [], set()
         obs = self._wait_for_agents()
@@ -162,14 +167,16 @@ class UrbanParallelEnv(ParallelEnv):
         self.finished |= sim.new_collisions | sim.new_teleports
         sim.new_collisions, sim.new_teleports = set(), set()
         terminated = {v: terminated.get(v, False) for v in obs}
-        truncated = {v: sim.done and not terminated[v] for v in obs}
+        done = sim.done  # two libsumo calls: once per step, not per vehicle
+        truncated = {v: done and not terminated[v] for v in obs}
         self.agents = [v for v in obs if not terminated[v] and not truncated[v]]
         if not self.agents:  # nobody to drive right now, but vehicles may still come or be on their last road
             new = self._wait_for_agents()
             obs |= new
             terminated |= {v: False for v in new}
-            truncated |= {v: sim.done for v in new}
-            self.agents = [] if sim.done else list(new)
+            done = sim.done
+            truncated |= {v: done for v in new}
+            self.agents = [] if done else list(new)
         infos = {v: {"route_agent": route_agent(v)} for v in obs}
         return obs, rewards, terminated, truncated, infos
 

@@ -23,7 +23,11 @@ STEP_S = 0.2
 ACTION_S = 1.0
 SLACK_S = 300.0  # an episode ends at the last departure + this, whatever is still on the road has failed
 TELEPORT_AFTER_S = 120.0  # SUMO teleports a vehicle stuck this long (gridlock); we count it as a failure
-SPEED_MODE_FREE, SPEED_MODE_LEADER_GUARD = 32, 33
+# TraCI speed mode bits: 0 safe speed, 1 max accel, 2 max decel, 3 right of way of approaching foes, 4 red lights,
+# 5 disregard right of way inside junctions, 6 disregard speed limits. FREE: every check off (the agent's command is
+# executed as is); CAR_FOLLOWING: only the safe speed behind the leader (with Krauss vTypes, the speed from which the
+# vehicle can still stop behind a leader braking hard), no right of way at junctions, no speed limits (turns included)
+SPEED_MODE_FREE, SPEED_MODE_CAR_FOLLOWING = 32, 1 + 32 + 64
 LEADER_LOOKAHEAD_M = 200.0  # braking from 40 m/s at 5 m/s² takes 160 m
 
 
@@ -98,9 +102,9 @@ class Tally:
 class Simulation:
     """A libsumo run of one scenario copy. `speed_mode` None: SUMO's own driver model (`model`) drives —
     the IDM / Krauss baselines. Otherwise the RL env's vehicles get this speed mode on departure:
-    SPEED_MODE_FREE (32) ignores right of way and safe speeds and does exactly what it is told (the
-    thesis: SUMO's safety checks off); SPEED_MODE_LEADER_GUARD (33) additionally lets SUMO cap the speed
-    at the safe speed behind the leader on the same lane (no rear-end collisions; crossings stay free)."""
+    SPEED_MODE_CAR_FOLLOWING (97, with `model` Krauss) lets SUMO cap the commanded speed at the safe speed
+    behind the leader and nothing else (no rear-end collisions; junction crossings and turns are unguarded);
+    SPEED_MODE_FREE (32) does exactly what it is told."""
 
     def __init__(self, files: ScenarioFiles, model: str = "IDM", seed: int = 0, speed_mode: int | None = None, step_s: float = STEP_S):
         self.files, self.model, self.seed, self.speed_mode, self.step_s = files, model, seed, speed_mode, step_s

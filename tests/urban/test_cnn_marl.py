@@ -63,3 +63,20 @@ def test_ch3_trains_and_acts(tmp_path, sc1_net):
     q = cnn_marl.RouteAgentsDQNCNN(len(agents), cnn_marl.STATE_DIM, torch.Generator().manual_seed(0))
     x = torch.from_numpy(t["state"][:5])[None].repeat(len(agents), 1, 1)
     assert q(x).shape == (len(agents), 5, 4)
+
+
+def test_cnn_branch_is_a_3x3_convolution_and_2x2_max_pool_per_agent():
+    # the batched matrix-product convolution must equal torch's conv2d + max_pool2d with each agent's own filters
+    n_agents, batch = 3, 7
+    q = cnn_marl.RouteAgentsDQNCNN(n_agents, cnn_marl.STATE_DIM, torch.Generator().manual_seed(1))
+    p = {k: v.detach() for k, v in q.p.items()}
+    x = torch.randn(n_agents, batch, cnn_marl.STATE_DIM, generator=torch.Generator().manual_seed(2))
+    got = q(x).detach()
+    for a in range(n_agents):
+        grid = x[a, :, cnn_marl.INDIVIDUAL_DIM:].reshape(batch, 1, GRID, GRID)
+        w = p["c_w"][a].T.reshape(cnn_marl.CNN_FILTERS, 1, cnn_marl.CNN_KERNEL, cnn_marl.CNN_KERNEL)
+        pooled = torch.nn.functional.max_pool2d(torch.relu(torch.nn.functional.conv2d(grid, w, p["c_b"][a])), 2)
+        q2 = torch.relu(pooled.permute(0, 2, 3, 1).reshape(batch, -1) @ p["c_w1"][a] + p["c_b1"][a]) @ p["c_w2"][a] + p["c_b2"][a]
+        s1 = x[a, :, : cnn_marl.INDIVIDUAL_DIM]
+        q1 = torch.relu(s1 @ p["d_w1"][a] + p["d_b1"][a]) @ p["d_w2"][a] + p["d_b2"][a]
+        torch.testing.assert_close(got[a], cnn_marl.MU * q1 + (1 - cnn_marl.MU) * q2, rtol=1e-5, atol=1e-5)

@@ -101,10 +101,9 @@ def _same_route_copy(folder, net, departs):
     return ScenarioFiles(str(net), str(folder / "routes.rou.xml"), str(folder), float(max(departs)), 40.0)
 
 
-def test_front_gap_is_bumper_to_bumper_down_to_contact(tmp_path, sc1_net):
-    # the leader holds 10 m/s, its follower accelerates into it: the gap must read as a gap (>= 0) all the way down,
-    # not as "no front vehicle" once it is below SUMO's minGap (getLeader's distance excludes it)
-    env = UrbanParallelEnv(_same_route_copy(tmp_path / "follow", sc1_net, [0, 2]))
+def _run_follower_into_leader(folder, net, leader_guard: bool):
+    """The leader holds 10 m/s, its follower is told to accelerate into it; returns the follower's gaps (m) and the tally."""
+    env = UrbanParallelEnv(_same_route_copy(folder, net, [0, 2]), leader_guard=leader_guard)
     obs, _ = env.reset(seed=0)
     gaps = []
     while env.agents:
@@ -114,8 +113,33 @@ def test_front_gap_is_bumper_to_bumper_down_to_contact(tmp_path, sc1_net):
             gaps.append(follower[2] * 200.0)
     tally = env.sim.tally
     env.close()
+    return gaps, tally
+
+
+def test_front_gap_is_bumper_to_bumper_down_to_contact(tmp_path, sc1_net):
+    # every SUMO check off: the gap must read as a gap (>= 0) all the way down to the rear-end collision, not as
+    # "no front vehicle" once it is below SUMO's minGap (getLeader's distance excludes it)
+    gaps, tally = _run_follower_into_leader(tmp_path / "follow", sc1_net, leader_guard=False)
     assert tally.collision_types == {"collision": 1}  # rear-end
     assert min(gaps) >= 0.0 and min(gaps) < 2.5
+
+
+def test_car_following_safety_prevents_the_rear_end_and_keeps_turns_free(tmp_path, sc1_net):
+    # the default: SUMO caps the follower at its safe speed behind the leader, so the same orders end without a collision
+    gaps, tally = _run_follower_into_leader(tmp_path / "follow", sc1_net, leader_guard=True)
+    assert not tally.collision_pairs and len(tally.arrive) == 2 and min(gaps) > 0.0
+    # ... while junction crossings stay the agents' job (test_forced_crossing_is_a_collision runs the default too), and
+    # neither turn speeds nor an acceleration law are imposed: a lone car turning left at full acceleration is as fast
+    # as with every check off
+    times = []
+    for guard in (False, True):
+        env = UrbanParallelEnv(crossing_copy(tmp_path / f"turn{guard}", sc1_net, turn=True), leader_guard=guard)
+        env.reset(seed=0)
+        while env.agents:
+            env.step({a: 4 for a in env.agents})
+        times.append(env.sim.metrics(1)["avg_travel_time_s"])
+        env.close()
+    assert times[1] == pytest.approx(times[0], abs=0.5)
 
 
 def test_a_gap_in_traffic_does_not_end_the_episode(tmp_path, sc1_net):

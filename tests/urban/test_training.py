@@ -28,7 +28,7 @@ def test_same_seed_same_policy_and_log(tmp_path, sc1_net):
 def test_i_marl_sees_four_state_terms(tmp_path, sc1_net):
     files, routes = make_copy(tmp_path / "c", sc1_net, 15, 60.0)
     agents = [f"{r['route_id']}:{c}" for r in routes for c in ("car", "heavy")]
-    params, rows = _train(files, agents, "ind", 0, episodes=2)
+    params, rows = _train(files, agents, "ind", 0, episodes=2, gradient_steps=2)  # shapes only: few steps
     assert params["w1"].shape == (len(agents), 4, 128)
     assert any(np.isfinite(r["return"]) for r in rows)
 

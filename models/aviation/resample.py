@@ -80,21 +80,25 @@ def resample(tracks: pl.DataFrame, dt_s: float = 20.0) -> pl.DataFrame:
 
 
 def fill_rates_from_positions(df: pl.DataFrame, dt_s: float) -> pl.DataFrame:
-    """Where a source reported no speed/track/vertical rate, derive them from consecutive positions."""
-    lat, lon = pl.col("lat").radians(), pl.col("lon").radians()
-    nlat = lat.shift(-1).over("flight_id").fill_null(lat)
-    nlon = lon.shift(-1).over("flight_id").fill_null(lon)
-    plat = lat.shift(1).over("flight_id").fill_null(lat)
-    plon = lon.shift(1).over("flight_id").fill_null(lon)
-    steps = (pl.col("ts").shift(-1).over("flight_id").is_not_null().cast(pl.Float64) + pl.col("ts").shift(1).over("flight_id").is_not_null().cast(pl.Float64)).clip(lower_bound=1.0)
+    """Where a source reported no speed/track/vertical rate, derive them from consecutive positions.
+
+    Rows are grouped by flight in time order (as `resample` makes them)."""
+    rates = ["groundspeed_mps", "track_deg", "vertical_rate_mps"]
+    if not df.select((pl.col(rates).is_nan() | pl.col(rates).is_null()).any()).to_numpy().any():
+        return df  # the usual case: nothing to derive
+    # a neighbour's value if it belongs to the same flight, else this row's (a shift guarded by the flight id is a
+    # window shift over flight_id on grouped rows, without the window's grouping)
+    near = lambda c, k: pl.when(pl.col("flight_id") == pl.col("flight_id").shift(k)).then(c.shift(k)).otherwise(c)  # noqa: E731
+    lat, lon, alt = pl.col("lat").radians(), pl.col("lon").radians(), pl.col("alt_m")
+    nlat, nlon, plat, plon = near(lat, -1), near(lon, -1), near(lat, 1), near(lon, 1)
+    has = lambda k: (pl.col("flight_id") == pl.col("flight_id").shift(k)).fill_null(False).cast(pl.Float64)  # noqa: E731
+    steps = (has(-1) + has(1)).clip(lower_bound=1.0)
     dlat, dlon = nlat - plat, nlon - plon
     a = (dlat / 2).sin() ** 2 + plat.cos() * nlat.cos() * (dlon / 2).sin() ** 2
     dist = 2 * EARTH_RADIUS_M * a.sqrt().arcsin()
     bearing = pl.arctan2(dlon.sin() * nlat.cos(), plat.cos() * nlat.sin() - plat.sin() * nlat.cos() * dlon.cos()).degrees() % 360
-    nalt = pl.col("alt_m").shift(-1).over("flight_id").fill_null(pl.col("alt_m"))
-    palt = pl.col("alt_m").shift(1).over("flight_id").fill_null(pl.col("alt_m"))
     return df.with_columns(
         pl.col("groundspeed_mps").fill_nan(None).fill_null(dist / (steps * dt_s)),
         pl.col("track_deg").fill_nan(None).fill_null(bearing),
-        pl.col("vertical_rate_mps").fill_nan(None).fill_null((nalt - palt) / (steps * dt_s)),
+        pl.col("vertical_rate_mps").fill_nan(None).fill_null((near(alt, -1) - near(alt, 1)) / (steps * dt_s)),
     )

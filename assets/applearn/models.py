@@ -40,7 +40,7 @@ def applearn_experiments(context: dg.AssetExecutionContext, config: AppLearnConf
 
     from models.trajectory.applearn import demo_or_paper
     from models.trajectory.applearn_eval import datasets, run_partition, table_6_1
-    from models.trajectory.report import markdown_table
+    from models.markdown import markdown_table
     from warehouse.artifacts import artifact_path, write_bytes_atomic
 
     if config.profile not in PROTOCOL:

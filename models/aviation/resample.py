@@ -86,13 +86,13 @@ def fill_rates_from_positions(df: pl.DataFrame, dt_s: float) -> pl.DataFrame:
     rates = ["groundspeed_mps", "track_deg", "vertical_rate_mps"]
     if not df.select((pl.col(rates).is_nan() | pl.col(rates).is_null()).any()).to_numpy().any():
         return df  # the usual case: nothing to derive
-    # a neighbour's value if it belongs to the same flight, else this row's (a shift guarded by the flight id is a
-    # window shift over flight_id on grouped rows, without the window's grouping)
-    near = lambda c, k: pl.when(pl.col("flight_id") == pl.col("flight_id").shift(k)).then(c.shift(k)).otherwise(c)  # noqa: E731
+    # whether the next (-1) / previous (1) row is of the same flight: a shift guarded by it is a window shift over
+    # flight_id on grouped rows, without the window's grouping
+    same = {k: (pl.col("flight_id") == pl.col("flight_id").shift(k)).fill_null(False) for k in (-1, 1)}
+    near = lambda c, k: pl.when(same[k]).then(c.shift(k)).otherwise(c)  # noqa: E731  (else this row's value)
     lat, lon, alt = pl.col("lat").radians(), pl.col("lon").radians(), pl.col("alt_m")
     nlat, nlon, plat, plon = near(lat, -1), near(lon, -1), near(lat, 1), near(lon, 1)
-    has = lambda k: (pl.col("flight_id") == pl.col("flight_id").shift(k)).fill_null(False).cast(pl.Float64)  # noqa: E731
-    steps = (has(-1) + has(1)).clip(lower_bound=1.0)
+    steps = (same[-1].cast(pl.Float64) + same[1].cast(pl.Float64)).clip(lower_bound=1.0)
     dlat, dlon = nlat - plat, nlon - plon
     a = (dlat / 2).sin() ** 2 + plat.cos() * nlat.cos() * (dlon / 2).sin() ** 2
     dist = 2 * EARTH_RADIUS_M * a.sqrt().arcsin()

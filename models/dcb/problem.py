@@ -150,13 +150,13 @@ class DCBProblem:
         extra component. A flight entering at hh:58 needs 2 min of delay to leave its hotspot hour, one
         at hh:05 needs 55; the thesis state (d_i, h_i) does not say which of a hotspot's flights these are."""
         idx = self.relevant[ev.entry_hot]
-        key = ev.entry_key[ev.entry_hot]
-        to_leave = 60 - (self.entry_min[idx] + delay_min[self.entry_flight[idx]]) % 60
-        order = np.lexsort((self.entry_flight[idx], to_leave, key))  # ties: lower flight index first (deterministic)
+        key, flight = ev.entry_key[ev.entry_hot], self.entry_flight[idx]
+        to_leave = 60 - (self.entry_min[idx] + delay_min[flight]) % 60
+        order = np.lexsort((flight, to_leave, key))  # ties: lower flight index first (deterministic)
         ks = key[order]
         rank = np.arange(ks.size) - np.searchsorted(ks, ks, side="left")
         excess = ev.counts[ks] - self.capacity[ks]
-        return np.bincount(self.entry_flight[idx][order][rank < excess], minlength=self.n_flights).clip(max=1)
+        return np.bincount(flight[order][rank < excess], minlength=self.n_flights).clip(max=1)
 
     def reward(self, delay_min: np.ndarray, ev: Evaluation) -> np.ndarray:
         """Eq 5.2-5.4 for every flight."""

@@ -17,7 +17,9 @@ from pathlib import Path
 
 import numpy as np
 import polars as pl
-from sklearn.neighbors import BallTree
+from scipy.spatial import cKDTree
+
+from models.aviation.order import in_flight_order
 
 EARTH_RADIUS_NM = 3440.065
 SEARCH_RADIUS_NM = 300.0
@@ -44,10 +46,17 @@ def airports_table() -> pl.DataFrame:
     return ap.drop_nulls().with_columns(ils=pl.col("icao").is_in(list(ils)))
 
 
+def _unit_xyz(lat: np.ndarray, lon: np.ndarray) -> np.ndarray:
+    """Points on the unit sphere: great-circle neighbourhoods become Euclidean balls (radius 2 sin(θ/2)),
+    which a k-d tree searches ~10x faster than a haversine ball tree."""
+    la, lo = np.radians(lat), np.radians(lon)
+    return np.c_[np.cos(la) * np.cos(lo), np.cos(la) * np.sin(lo), np.sin(la)]
+
+
 @lru_cache(maxsize=2)
-def _tree(ils_only: bool) -> tuple[BallTree, pl.DataFrame]:
+def _tree(ils_only: bool) -> tuple[cKDTree, pl.DataFrame]:
     ap = airports_table().filter(pl.col("ils")) if ils_only else airports_table()
-    return BallTree(np.radians(ap.select("lat", "lon").to_numpy()), metric="haversine"), ap
+    return cKDTree(_unit_xyz(ap["lat"].to_numpy(), ap["lon"].to_numpy())), ap
 
 
 def _bearing_deg(lat1, lon1, lat2, lon2):
@@ -69,14 +78,12 @@ def best_airport(lat: np.ndarray, lon: np.ndarray, alt_m: np.ndarray, heading_de
 def _best_among(lat, lon, alt_m, heading_deg, ils_only: bool):
     tree, ap = _tree(ils_only)
     ap_lat, ap_lon, icao = ap["lat"].to_numpy(), ap["lon"].to_numpy(), ap["icao"].to_numpy()
-    ind, dist = tree.query_radius(
-        np.radians(np.c_[lat, lon]), r=SEARCH_RADIUS_NM / EARTH_RADIUS_NM, return_distance=True
+    # every (point, airport) pair within the search radius, as flat arrays, in one tree-against-tree pass
+    pairs = cKDTree(_unit_xyz(lat, lon)).sparse_distance_matrix(
+        tree, 2 * np.sin(SEARCH_RADIUS_NM / EARTH_RADIUS_NM / 2), output_type="ndarray"
     )
-    # flatten the ragged candidate lists so that scoring is one vectorised pass
-    counts = np.array([len(i) for i in ind])
-    owner = np.repeat(np.arange(len(lat)), counts)
-    cand = np.concatenate(ind) if counts.sum() else np.zeros(0, int)
-    d_nm = np.concatenate(dist) * EARTH_RADIUS_NM if counts.sum() else np.zeros(0)
+    owner, cand = pairs["i"].astype(np.int64), pairs["j"].astype(np.int64)
+    d_nm = 2 * np.arcsin(np.minimum(pairs["v"] / 2, 1.0)) * EARTH_RADIUS_NM
     off = np.radians((_bearing_deg(lat[owner], lon[owner], ap_lat[cand], ap_lon[cand]) - heading_deg[owner] + 180) % 360 - 180)
     to_go = np.clip(alt_m[owner] / 0.3048, 0, None) / FT_PER_NM_PATH
     score = np.abs(d_nm * np.sin(off)) + 0.25 * np.abs(d_nm * np.cos(off) - to_go)
@@ -102,8 +109,9 @@ def _distance_nm(lat1, lon1, lat2, lon2):
 
 def flights_table(tracks: pl.DataFrame) -> pl.DataFrame:
     """One row per flight with origin/destination (and the distance to them) from its end points."""
+    near = lambda c, i: pl.col(c).get(i)  # noqa: E731  (the i-th point, clipped to the flight's length)
     ends = (
-        tracks.sort("flight_id", "ts")
+        in_flight_order(tracks)
         .group_by("flight_id", maintain_order=True)
         .agg(
             pl.col("callsign").first(),
@@ -114,14 +122,14 @@ def flights_table(tracks: pl.DataFrame) -> pl.DataFrame:
             lat0=pl.col("lat").first(),
             lon0=pl.col("lon").first(),
             alt0=pl.col("alt_m").first(),
-            # heading from the positions themselves: reported track can be missing at the ends
-            lat1=pl.col("lat").slice(10, 1).first(),
-            lon1=pl.col("lon").slice(10, 1).first(),
+            # heading from the positions themselves (10 points in): reported track can be missing at the ends
+            lat1=near("lat", pl.min_horizontal(10, pl.len() - 1)),
+            lon1=near("lon", pl.min_horizontal(10, pl.len() - 1)),
             latn=pl.col("lat").last(),
             lonn=pl.col("lon").last(),
             altn=pl.col("alt_m").last(),
-            latm=pl.col("lat").reverse().slice(10, 1).first(),
-            lonm=pl.col("lon").reverse().slice(10, 1).first(),
+            latm=near("lat", pl.max_horizontal(pl.len() - 11, 0)),
+            lonm=near("lon", pl.max_horizontal(pl.len() - 11, 0)),
         )
     )
     e = {c: ends[c].to_numpy() for c in ends.columns}

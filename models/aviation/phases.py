@@ -18,6 +18,8 @@ from dataclasses import dataclass
 
 import polars as pl
 
+from models.aviation.order import in_flight_order
+
 PHASES = ("climb", "cruise", "descent")
 
 
@@ -40,14 +42,14 @@ def _haversine_km(lat1: pl.Expr, lon1: pl.Expr, lat2: pl.Expr, lon2: pl.Expr) ->
 
 
 def _first_ts_where(cond: pl.Expr) -> pl.Expr:
-    return pl.col("ts").filter(cond).min().over("flight_id")
+    return pl.col("ts").filter(cond).min().over("_run")
 
 
 def _vertical_bounds(tracks: pl.DataFrame, flights: pl.DataFrame, cfg: PhaseConfig) -> pl.DataFrame:
     duration = flights.select(
         "flight_id", "route", dur_s=(pl.col("last_ts") - pl.col("first_ts")).dt.total_seconds(fractional=True)
     ).with_columns(est_s=pl.col("dur_s").median().over("route"))
-    f = "flight_id"
+    f = "_run"
     alt = pl.col("alt_m").rolling_mean(cfg.smooth_points, center=True, min_samples=1).over(f)
     dt = pl.col("ts").diff().over(f).dt.total_seconds(fractional=True)
     dh = alt.diff().over(f)
@@ -56,7 +58,7 @@ def _vertical_bounds(tracks: pl.DataFrame, flights: pl.DataFrame, cfg: PhaseConf
     elapsed = (pl.col("ts") - pl.col("ts").first().over(f)).dt.total_seconds(fractional=True)
     climbing = ((rate > cfg.climb_rate_mps) | (da / dt > 0)).fill_null(True)
     climb_end = _first_ts_where(~climbing & (elapsed > cfg.climb_end_fraction * pl.col("est_s")))
-    t = tracks.join(duration, on=f, how="left").with_columns(climb_end=climb_end)
+    t = tracks.join(duration, on="flight_id", how="left").with_columns(climb_end=climb_end)
     descending = (dh < -cfg.descent_drop_m).fill_null(False) & (elapsed > cfg.descent_start_fraction * pl.col("est_s"))
     return t.with_columns(descent_start=_first_ts_where(descending & (pl.col("ts") >= pl.col("climb_end"))))
 
@@ -77,13 +79,15 @@ def _region_bounds(tracks: pl.DataFrame, flights: pl.DataFrame, airports: pl.Dat
 def assign_phases(
     tracks: pl.DataFrame, flights: pl.DataFrame, cfg: PhaseConfig = PhaseConfig(), airports: pl.DataFrame | None = None
 ) -> pl.DataFrame:
-    """Add a `phase` column to constant-step tracks (sorted by flight_id, ts)."""
+    """Add a `phase` column to constant-step tracks; rows come back in (flight_id, ts) order."""
+    # windows per flight over an integer run id (rows are grouped by flight) instead of hashing the string ids
+    runs = in_flight_order(tracks).with_columns(_run=pl.col("flight_id").rle_id())
     if cfg.method == "vertical":
-        t = _vertical_bounds(tracks, flights, cfg)
+        t = _vertical_bounds(runs, flights, cfg)
     elif cfg.method == "regions":
         if airports is None:
             raise ValueError("phase method 'regions' needs the airports table")
-        t = _region_bounds(tracks, flights, airports, cfg)
+        t = _region_bounds(runs, flights, airports, cfg)
     else:
         raise ValueError(f"unknown phase method '{cfg.method}', expected 'vertical' or 'regions'")
     phase = (

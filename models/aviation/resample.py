@@ -1,13 +1,16 @@
 """Constant-step tracks: every flight on a grid of multiples of Δt (default 20 s).
 
 Between two received positions the aircraft is assumed to fly at constant speed, i.e. positions,
-altitude and rates are linear in time. All flights are interpolated in one `np.interp` call: each
-flight's times are offset by its index times a stride longer than any flight, which makes the
-concatenated time axis strictly increasing without letting one flight bleed into the next.
+altitude and rates are linear in time, angles (track, longitude) turn along the shorter arc. All flights
+are interpolated at once: each flight's times are offset by its index times a stride longer than any
+flight, which makes the concatenated time axis strictly increasing without letting one flight bleed into
+the next, and one binary search of the grid in that axis serves every column.
 """
 
 import numpy as np
 import polars as pl
+
+from models.aviation.order import in_flight_order
 
 EARTH_RADIUS_M = 6_371_000.0
 US = 1_000_000
@@ -27,7 +30,7 @@ def resample(tracks: pl.DataFrame, dt_s: float = 20.0) -> pl.DataFrame:
     """Cleaned points (flight_id, ts, lat, lon, alt_m, groundspeed_mps, track_deg, vertical_rate_mps)
     -> the same columns on the Δt grid. Flights shorter than one step are dropped."""
     dt_us = int(round(dt_s * US))
-    src = tracks.sort("flight_id", "ts")
+    src = in_flight_order(tracks)
     # flights are contiguous after the sort: run ids number them without hashing the string ids
     idx = src["flight_id"].rle_id().to_numpy()
     t = src["ts"].dt.epoch("us").to_numpy()
@@ -42,37 +45,58 @@ def resample(tracks: pl.DataFrame, dt_s: float = 20.0) -> pl.DataFrame:
     key_src = idx * stride + (t - t0)
     key_dst = owner * stride + (grid_us - t0)
 
-    def interp(values: np.ndarray) -> np.ndarray:
+    searches: dict[bytes, tuple] = {}  # one binary search per distinct set of valid points, shared by columns
+
+    def search(ok: np.ndarray) -> tuple:
+        """(left, right source row, offset from left, left-to-right span, gap mask) of every grid point."""
+        mask_key = np.packbits(ok).tobytes()
+        if mask_key not in searches:
+            pos = np.flatnonzero(ok)
+            xp = key_src[pos]
+            j = np.clip(np.searchsorted(xp, key_dst, side="right") - 1, 0, max(len(xp) - 2, 0))
+            k = np.minimum(j + 1, len(xp) - 1)
+            gap = None
+            if len(pos) < len(ok):
+                # outside a flight's first/last reported value there is nothing to interpolate from: leave a gap
+                lo, hi = np.full(len(ids), np.inf), np.full(len(ids), -np.inf)
+                flight = idx[pos]
+                first = np.r_[True, flight[1:] != flight[:-1]]
+                last = np.r_[first[1:], True]
+                lo[flight[first]], hi[flight[last]] = xp[first], xp[last]
+                gap = (key_dst < lo[owner]) | (key_dst > hi[owner])
+            searches[mask_key] = pos[j], pos[k], key_dst - xp[j], xp[k] - xp[j], gap
+        return searches[mask_key]
+
+    def interp(values: np.ndarray, turn: float | None = None) -> np.ndarray:
+        """np.interp over each flight's valid values (bit-identical: its slope-times-offset arithmetic and the
+        left value on an exact hit); with `turn` (360) an angle, interpolated along the shorter arc."""
         ok = ~np.isnan(values)
-        if ok.all():
-            return np.interp(key_dst, key_src, values)
         if not ok.any():
             return np.full(len(key_dst), np.nan)
-        out = np.interp(key_dst, key_src[ok], values[ok])
-        # outside a flight's first/last reported value there is nothing to interpolate from: leave a gap
-        lo, hi = np.full(len(ids), np.inf), np.full(len(ids), -np.inf)
-        flight, key = idx[ok], key_src[ok]
-        first = np.r_[True, flight[1:] != flight[:-1]]
-        last = np.r_[first[1:], True]
-        lo[flight[first]], hi[flight[last]] = key[first], key[last]
-        out[(key_dst < lo[owner]) | (key_dst > hi[owner])] = np.nan
+        j, k, dx, h, gap = search(ok)
+        rise = values[k] - values[j]
+        if turn is not None:
+            rise = (rise + turn / 2) % turn - turn / 2
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out = np.where(dx == 0, values[j], rise / h * dx + values[j])
+        if turn is not None:
+            out %= turn
+        if gap is not None:
+            out[gap] = np.nan
         return out
 
     col = lambda c: src[c].cast(pl.Float64).fill_null(np.nan).to_numpy()  # noqa: E731
-    lon = col("lon")
-    # whole turns added where consecutive points jump across the antimeridian (np.unwrap, 8x cheaper)
-    lon_unwrapped = lon + 360.0 * np.r_[0.0, np.cumsum(-np.round(np.diff(lon) / 360.0))] if len(lon) else lon
-    track = np.radians(col("track_deg"))
     out = pl.DataFrame(
         {
             "flight_id": ids.gather(owner),
             "ts": pl.Series(grid_us).cast(pl.Datetime("us", "UTC")),
             "lat": interp(col("lat")),
-            "lon": (interp(lon_unwrapped) + 180.0) % 360.0 - 180.0,
+            # across the antimeridian (179 -> -179) the shorter arc is the one the aircraft flew
+            "lon": (interp(col("lon"), turn=360.0) + 180.0) % 360.0 - 180.0,
             "alt_m": interp(col("alt_m")),
             "groundspeed_mps": interp(col("groundspeed_mps")),
-            # angles are interpolated through their sine and cosine so that 359° -> 1° passes north
-            "track_deg": np.degrees(np.arctan2(interp(np.sin(track)), interp(np.cos(track)))) % 360.0,
+            # a heading of 359 deg then 1 deg turns through north
+            "track_deg": interp(col("track_deg"), turn=360.0),
             "vertical_rate_mps": interp(col("vertical_rate_mps")),
         }
     )

@@ -1,0 +1,12 @@
+"""Row order shared by the track transforms: grouped by flight, in time order within a flight."""
+
+import polars as pl
+
+
+def in_flight_order(df: pl.DataFrame) -> pl.DataFrame:
+    """`df` sorted by (flight_id, ts). The pipeline's frames arrive sorted, and checking costs a third of a sort."""
+    fid = pl.col("flight_id")
+    ordered = df["flight_id"].is_sorted() and df.select(
+        ((pl.col("ts").diff() > pl.duration(microseconds=0)) | (fid != fid.shift(1))).all()
+    ).item()
+    return df if ordered else df.sort("flight_id", "ts")

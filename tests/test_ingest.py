@@ -132,3 +132,30 @@ def test_spikes_and_ground_points_rejected(tmp_path, small_raw):
     spiked = rejects.filter(pl.col("reason") == "speed_spike")["row_index"].to_numpy()
     assert np.isin(spike_rows.to_numpy(), spiked).mean() > 0.8
     assert tracks["lat"].max() < small_raw["lat"].max() + 0.01
+
+
+def test_callsigns_fill_split_and_fallback(tmp_path, small_raw):
+    """A callsign missing mid-flight is carried forward (no new flight), a callsign change starts a flight,
+    an aircraft that never sends one keeps its icao24 as callsign; ids that are not ICAO hex work too."""
+    first = small_raw.filter(pl.col("callsign").is_not_null())["icao24"][0]
+    one = small_raw.filter(pl.col("icao24") == first).sort("time")
+    clean_ids = ingest(_write(one, tmp_path / "one.parquet"))[0]["flight_id"].unique()
+    n = one.height
+    gappy = one.with_columns(callsign=pl.when(pl.int_range(n) % 7 == 3).then(None).otherwise("callsign"))
+    gappy_tracks = ingest(_write(gappy, tmp_path / "gappy.parquet"))[0]
+    assert gappy_tracks["flight_id"].unique().equals(clean_ids)
+    assert set(gappy_tracks["callsign"]) == set(one["callsign"].drop_nulls().str.strip_chars())
+    # a flight of one aircraft relabelled half-way: two flights, each with its own callsign
+    biggest = clean_ids.to_list()[0]
+    tracks = ingest(_write(one, tmp_path / "one2.parquet"))[0].filter(pl.col("flight_id") == biggest)
+    cut = tracks["ts"][tracks.height // 2]
+    renamed = one.with_columns(callsign=pl.when(pl.col("time") >= cut).then(pl.lit("NEW123")).otherwise("callsign"))
+    split = ingest(_write(renamed, tmp_path / "renamed.parquet"))[0]
+    assert split["flight_id"].n_unique() == clean_ids.len() + 1
+    assert split.filter(pl.col("ts") >= cut)["callsign"].unique().to_list() == ["NEW123"]
+    # no callsign at all and a non-hex transponder id
+    anon = one.with_columns(callsign=pl.lit(None, pl.String), icao24=pl.lit("Test-7"))
+    anon_tracks, anon_rejects, _ = ingest(_write(anon, tmp_path / "anon.parquet"))
+    assert anon_tracks.height + anon_rejects.height == n
+    assert anon_tracks["callsign"].unique().to_list() == ["test-7"]
+    assert anon_tracks["flight_id"].n_unique() == clean_ids.len()

@@ -320,7 +320,8 @@ def _split_flights(kept: pl.DataFrame, icao24: pl.Series, cfg: IngestConfig) -> 
 
     Returns (kept with `segment`, 0-based flight number, and the callsign filled forward per aircraft;
     one row per flight: flight_id, flight_rank = rank of the name, points). `icao24` is the raw column."""
-    kept = kept.with_columns(pl.col("callsign").fill_null(strategy="forward").over("_ac"))
+    if kept["callsign"].null_count():  # a window per aircraft, only when some callsign is missing
+        kept = kept.with_columns(pl.col("callsign").fill_null(strategy="forward").over("_ac"))
     gap = (pl.col("ts") - _prev("ts")).dt.total_seconds(fractional=True)
     callsign_changed = (pl.col("callsign") != _prev("callsign")).fill_null(False)
     new = gap.is_null() | (gap > cfg.gap_split_s) | callsign_changed
@@ -346,6 +347,16 @@ def _aircraft_ids(icao24: pl.Series) -> pl.Series:
     return icao24.rank("dense").cast(pl.Int64).alias("_ac")
 
 
+def _aircraft_time_order(rows: pl.DataFrame) -> np.ndarray:
+    """Positions in (aircraft, ts, row_index) order, nulls last: two stable numpy sorts of integer keys
+    (timsort finds the runs of a presorted file) and no column moved until the one gather, ~2x cheaper
+    than polars sorting the frame."""
+    last = np.iinfo(np.int64).max
+    ts = rows["ts"].dt.epoch("us").fill_null(last).to_numpy()
+    order = np.argsort(ts, kind="stable")
+    return order[np.argsort(rows["_ac"].fill_null(last).to_numpy()[order], kind="stable")]
+
+
 def clean(raw: pl.DataFrame, source: str, cfg: IngestConfig = IngestConfig()) -> tuple[pl.DataFrame, pl.DataFrame]:
     """Normalised rows -> (cleaned points with flight_id, rejects with reason). Every row ends in one.
 
@@ -353,18 +364,19 @@ def clean(raw: pl.DataFrame, source: str, cfg: IngestConfig = IngestConfig()) ->
     and the other columns are gathered once, for the rows that survive, in their final order (and for the
     rejects, in theirs)."""
     rows = raw.select("row_index", _aircraft_ids(raw["icao24"]), *RULE_COLUMNS)
-    # (aircraft, ts, row_index) order as two stable single-key sorts, twice as fast as one sort on two keys
-    kept = rows.sort("ts", nulls_last=True, maintain_order=True).sort("_ac", nulls_last=True, maintain_order=True)
+    kept = rows[_aircraft_time_order(rows)]
     rejected = []
     stages = _row_rules(cfg)
     for i, stage in enumerate(stages):
-        reason = kept.select(reason=pl.coalesce(pl.when(rule).then(pl.lit(reason)) for reason, rule in stage))["reason"]
-        hit = reason.is_not_null()
+        # which rule (first match) as a small integer: a string per row would cost more than the rules
+        rule_no = kept.select(pl.coalesce(pl.when(rule).then(pl.lit(j, pl.UInt8)) for j, (_, rule) in enumerate(stage))).to_series()
+        hit = rule_no.is_not_null()
         # carry on only with the columns that the later stages and the tracks use
         later = {c for _, rule in (r for st in stages[i + 1 :] for r in st) for c in rule.meta.root_names()}
         kept = kept.select(c for c in kept.columns if c in later | set(TRACK_COLUMNS))
         if hit.any():  # a filter copies every column: skip it when the stage rejects nothing
-            rejected.append(pl.DataFrame({"row_index": kept["row_index"].filter(hit), "reason": reason.filter(hit)}))
+            reason = pl.Series("reason", [name for name, _ in stage]).gather(rule_no.filter(hit))
+            rejected.append(pl.DataFrame([kept["row_index"].filter(hit), reason]))
             kept = kept.filter(~hit)
     kept = kept.with_columns(callsign=raw["callsign"].gather(kept["row_index"]))
     kept, flights = _split_flights(kept, raw["icao24"], cfg)

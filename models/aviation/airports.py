@@ -112,8 +112,10 @@ def flights_table(tracks: pl.DataFrame) -> pl.DataFrame:
     near = lambda c, i: pl.col(c).get(i)  # noqa: E731  (the i-th point, clipped to the flight's length)
     ends = (
         in_flight_order(tracks)
-        .group_by("flight_id", maintain_order=True)
+        # grouped by the run of each flight (contiguous rows): an integer key, cheaper than hashing the ids
+        .group_by(pl.col("flight_id").rle_id().alias("_run"), maintain_order=True)
         .agg(
+            pl.col("flight_id").first(),
             pl.col("callsign").first(),
             pl.col("icao24").first(),
             first_ts=pl.col("ts").first(),
@@ -131,6 +133,7 @@ def flights_table(tracks: pl.DataFrame) -> pl.DataFrame:
             latm=near("lat", pl.max_horizontal(pl.len() - 11, 0)),
             lonm=near("lon", pl.max_horizontal(pl.len() - 11, 0)),
         )
+        .drop("_run")
     )
     e = {c: ends[c].to_numpy() for c in ends.columns}
     back = _bearing_deg(e["lat1"], e["lon1"], e["lat0"], e["lon0"])  # looking back from the first point

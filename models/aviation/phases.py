@@ -50,16 +50,19 @@ def _vertical_bounds(tracks: pl.DataFrame, flights: pl.DataFrame, cfg: PhaseConf
         "flight_id", "route", dur_s=(pl.col("last_ts") - pl.col("first_ts")).dt.total_seconds(fractional=True)
     ).with_columns(est_s=pl.col("dur_s").median().over("route"))
     f = "_run"
-    alt = pl.col("alt_m").rolling_mean(cfg.smooth_points, center=True, min_samples=1).over(f)
-    dt = pl.col("ts").diff().over(f).dt.total_seconds(fractional=True)
-    dh = alt.diff().over(f)
-    rate = dh / dt
-    da = rate.diff().over(f)
-    elapsed = (pl.col("ts") - pl.col("ts").first().over(f)).dt.total_seconds(fractional=True)
-    climbing = ((rate > cfg.climb_rate_mps) | (da / dt > 0)).fill_null(True)
-    climb_end = _first_ts_where(~climbing & (elapsed > cfg.climb_end_fraction * pl.col("est_s")))
-    t = tracks.join(duration, on="flight_id", how="left").with_columns(climb_end=climb_end)
-    descending = (dh < -cfg.descent_drop_m).fill_null(False) & (elapsed > cfg.descent_start_fraction * pl.col("est_s"))
+    # each window is materialised once: nested in one expression, polars would evaluate the inner ones again
+    t = tracks.join(duration, on="flight_id", how="left").with_columns(
+        _alt=pl.col("alt_m").rolling_mean(cfg.smooth_points, center=True, min_samples=1).over(f),
+        _dt=pl.col("ts").diff().over(f).dt.total_seconds(fractional=True),
+        _elapsed=(pl.col("ts") - pl.col("ts").first().over(f)).dt.total_seconds(fractional=True),
+    )
+    t = t.with_columns(_dh=pl.col("_alt").diff().over(f)).with_columns(_rate=pl.col("_dh") / pl.col("_dt"))
+    t = t.with_columns(_da=pl.col("_rate").diff().over(f))
+    climbing = ((pl.col("_rate") > cfg.climb_rate_mps) | (pl.col("_da") / pl.col("_dt") > 0)).fill_null(True)
+    t = t.with_columns(climb_end=_first_ts_where(~climbing & (pl.col("_elapsed") > cfg.climb_end_fraction * pl.col("est_s"))))
+    descending = (pl.col("_dh") < -cfg.descent_drop_m).fill_null(False) & (
+        pl.col("_elapsed") > cfg.descent_start_fraction * pl.col("est_s")
+    )
     return t.with_columns(descent_start=_first_ts_where(descending & (pl.col("ts") >= pl.col("climb_end"))))
 
 

@@ -49,14 +49,15 @@ def resample(tracks: pl.DataFrame, dt_s: float = 20.0) -> pl.DataFrame:
 
     def search(ok: np.ndarray) -> tuple:
         """(left, right source row, offset from left, left-to-right span, gap mask) of every grid point."""
-        mask_key = np.packbits(ok).tobytes()
+        everywhere = ok.all()
+        mask_key = b"" if everywhere else np.packbits(ok).tobytes()
         if mask_key not in searches:
-            pos = np.flatnonzero(ok)
-            xp = key_src[pos]
+            pos = None if everywhere else np.flatnonzero(ok)
+            xp = key_src if everywhere else key_src[pos]
             j = np.clip(np.searchsorted(xp, key_dst, side="right") - 1, 0, max(len(xp) - 2, 0))
             k = np.minimum(j + 1, len(xp) - 1)
             gap = None
-            if len(pos) < len(ok):
+            if not everywhere:
                 # outside a flight's first/last reported value there is nothing to interpolate from: leave a gap
                 lo, hi = np.full(len(ids), np.inf), np.full(len(ids), -np.inf)
                 flight = idx[pos]
@@ -64,7 +65,8 @@ def resample(tracks: pl.DataFrame, dt_s: float = 20.0) -> pl.DataFrame:
                 last = np.r_[first[1:], True]
                 lo[flight[first]], hi[flight[last]] = xp[first], xp[last]
                 gap = (key_dst < lo[owner]) | (key_dst > hi[owner])
-            searches[mask_key] = pos[j], pos[k], key_dst - xp[j], xp[k] - xp[j], gap
+            dx, h = key_dst - xp[j], xp[k] - xp[j]
+            searches[mask_key] = (j, k, dx, h, gap) if everywhere else (pos[j], pos[k], dx, h, gap)
         return searches[mask_key]
 
     def interp(values: np.ndarray, turn: float | None = None) -> np.ndarray:

@@ -283,7 +283,8 @@ def _speed_spike(cfg: IngestConfig) -> pl.Expr:
 
 def _row_rules(cfg: IngestConfig) -> list[list[tuple[str, pl.Expr]]]:
     """Stages of (reason, expression true for rows to reject). Within a stage the first matching reason
-    wins and all rules see the same rows; a stage sees only the rows the previous stages kept.
+    wins and all rules see the same rows; a stage sees only the rows the previous stages kept. The first
+    stage must test each row alone (it runs before the rows are sorted).
 
     Rows are sorted by (aircraft, ts, row_index), so a duplicate is a row equal to its predecessor and the
     first of the duplicates (lowest row_index) is the one kept."""
@@ -347,14 +348,23 @@ def _aircraft_ids(icao24: pl.Series) -> pl.Series:
     return icao24.rank("dense").cast(pl.Int64).alias("_ac")
 
 
-def _aircraft_time_order(rows: pl.DataFrame) -> np.ndarray:
-    """Positions in (aircraft, ts, row_index) order, nulls last: two stable numpy sorts of integer keys
-    (timsort finds the runs of a presorted file) and no column moved until the one gather, ~2x cheaper
-    than polars sorting the frame."""
-    last = np.iinfo(np.int64).max
-    ts = rows["ts"].dt.epoch("us").fill_null(last).to_numpy()
+def _aircraft_time_order(rows: pl.DataFrame, among: np.ndarray) -> np.ndarray:
+    """Positions of the rows `among` (no null ts or aircraft) in (aircraft, ts, row_index) order: two stable
+    numpy sorts of integer keys (timsort finds the runs of a presorted file) and no column moved until the
+    one gather, ~2x cheaper than polars sorting the frame."""
+    ts = rows["ts"].dt.epoch("us").to_numpy()[among]
     order = np.argsort(ts, kind="stable")
-    return order[np.argsort(rows["_ac"].fill_null(last).to_numpy()[order], kind="stable")]
+    order = order[np.argsort(rows["_ac"].to_numpy()[among][order], kind="stable")]
+    return among[order]
+
+
+def _first_match(frame: pl.DataFrame, stage: list[tuple[str, pl.Expr]]) -> tuple[pl.Series, pl.DataFrame]:
+    """(rows hit by a rule of the stage, their row_index and reason: the first rule that matches)."""
+    # the rule as a small integer: a string per row would cost more than the rules themselves
+    rule_no = frame.select(pl.coalesce(pl.when(rule).then(pl.lit(j, pl.UInt8)) for j, (_, rule) in enumerate(stage))).to_series()
+    hit = rule_no.is_not_null()
+    reason = pl.Series("reason", [name for name, _ in stage]).gather(rule_no.filter(hit))
+    return hit, pl.DataFrame([frame["row_index"].filter(hit), reason])
 
 
 def clean(raw: pl.DataFrame, source: str, cfg: IngestConfig = IngestConfig()) -> tuple[pl.DataFrame, pl.DataFrame]:
@@ -364,19 +374,18 @@ def clean(raw: pl.DataFrame, source: str, cfg: IngestConfig = IngestConfig()) ->
     and the other columns are gathered once, for the rows that survive, in their final order (and for the
     rejects, in theirs)."""
     rows = raw.select("row_index", _aircraft_ids(raw["icao24"]), *RULE_COLUMNS)
-    kept = rows[_aircraft_time_order(rows)]
-    rejected = []
-    stages = _row_rules(cfg)
+    missing, *stages = _row_rules(cfg)
+    # the first stage looks at each row alone, so it runs before the sort, which then orders only the rows left
+    hit, rejects = _first_match(rows, missing)
+    rejected = [rejects]
+    kept = rows[_aircraft_time_order(rows, np.flatnonzero(~hit.to_numpy()))]
     for i, stage in enumerate(stages):
-        # which rule (first match) as a small integer: a string per row would cost more than the rules
-        rule_no = kept.select(pl.coalesce(pl.when(rule).then(pl.lit(j, pl.UInt8)) for j, (_, rule) in enumerate(stage))).to_series()
-        hit = rule_no.is_not_null()
+        hit, rejects = _first_match(kept, stage)
         # carry on only with the columns that the later stages and the tracks use
         later = {c for _, rule in (r for st in stages[i + 1 :] for r in st) for c in rule.meta.root_names()}
         kept = kept.select(c for c in kept.columns if c in later | set(TRACK_COLUMNS))
-        if hit.any():  # a filter copies every column: skip it when the stage rejects nothing
-            reason = pl.Series("reason", [name for name, _ in stage]).gather(rule_no.filter(hit))
-            rejected.append(pl.DataFrame([kept["row_index"].filter(hit), reason]))
+        if rejects.height:  # a filter copies every column: skip it when the stage rejects nothing
+            rejected.append(rejects)
             kept = kept.filter(~hit)
     kept = kept.with_columns(callsign=raw["callsign"].gather(kept["row_index"]))
     kept, flights = _split_flights(kept, raw["icao24"], cfg)

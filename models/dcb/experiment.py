@@ -73,9 +73,8 @@ def case_row(case: str, scale: float, problem: DCBProblem) -> dict:
     """Table 5.1's description of a case before any delay."""
     zero = np.zeros(problem.n_flights, dtype=np.int64)
     ev = problem.evaluate(zero)
-    i, j = peer_edges(ev, problem.entry_flight[problem.relevant], problem.n_flights)
+    _, _, degree, _ = peer_edges(ev, problem.n_flights)
     in_hot = ev.hotspots_per_flight > 0
-    degree = np.bincount(np.concatenate([i, j]), minlength=problem.n_flights)
     return {"case": case, "capacity_scale": scale, "max_delay_min": problem.max_delay_min, "n_flights": problem.n_flights,
             "hotspots": ev.hotspots, "flights_in_hotspots": int(in_hot.sum()),
             "avg_traffic_density": float(degree[in_hot].mean()) if in_hot.any() else 0.0}

@@ -56,6 +56,8 @@ class Evaluation:
     entry_hot: np.ndarray  # [entry] bool, the entry falls in a hotspot
     hotspots_per_flight: np.ndarray  # [flight] h_i
     congested_min: np.ndarray  # [flight] TDC_i
+    hot_key: np.ndarray  # [hot entry] entry_key of the entries in a hotspot (entry order)
+    hot_flight: np.ndarray  # [hot entry] their flights
 
     @property
     def hotspots(self) -> int:
@@ -142,7 +144,7 @@ class DCBProblem:
         h = np.bincount(hot_flight, minlength=self.n_flights)  # h_i: hot entries per flight
         # TDC_i: their minutes inside (bincount of no entries at all returns int zeros, hence the cast)
         tdc = np.bincount(hot_flight, weights=e.dur_min[entry_hot], minlength=self.n_flights).astype(np.float64, copy=False)
-        return Evaluation(counts, hot, key, entry_hot, h, tdc)
+        return Evaluation(counts, hot, key, entry_hot, h, tdc, key[entry_hot], hot_flight)
 
     def movers(self, delay_min: np.ndarray, ev: Evaluation) -> np.ndarray:
         """[flight] 1 if one of its hot entries is among the `demand - capacity` entries of that hotspot

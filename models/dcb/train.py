@@ -62,7 +62,9 @@ class Level:
         return (max_delay // self.state_step + 1) * (H_CAP + 1) * self.n_extra
 
     def state(self, delay_min: np.ndarray, hotspots: np.ndarray, extra: np.ndarray | int = 0) -> np.ndarray:
-        return ((delay_min // self.state_step) * (H_CAP + 1) + np.minimum(hotspots, H_CAP)) * self.n_extra + extra
+        d = delay_min // self.state_step if self.state_step > 1 else delay_min  # ground level: no "// 1", "* 1 + 0" every step
+        s = d * (H_CAP + 1) + np.minimum(hotspots, H_CAP)
+        return s * self.n_extra + extra if self.n_extra > 1 else s
 
     def state_map(self, max_delay: int) -> np.ndarray:
         """φ: ground state index -> this level's state index."""
@@ -131,7 +133,7 @@ def run_episode(problem: DCBProblem, learner, level: Level, eps: float, rng: np.
 
 def _make(learner_cls, problem: DCBProblem, n_states: int, lr: float):
     if learner_cls is CoordinatedQ:
-        return CoordinatedQ(problem.n_flights, n_states, problem.entry_flight[problem.relevant], lr=lr)
+        return CoordinatedQ(problem.n_flights, n_states, lr=lr)
     return IndependentQ(problem.n_flights, n_states, lr=lr)
 
 

@@ -3,13 +3,15 @@
 `evaluate` (integer keys, entry arrays gathered once, per-flight sums over hot entries only) against
 the former full evaluation (float keys, weighted sums over every entry); `peer_edges` (sort-based
 unique) against np.unique; `row_max` against max(axis=1); and whole training runs against delays
-recorded with the code before these speed-ups (same seed -> same delays, bit for bit).
+recorded with the code before the speed-ups (same seed -> same delays, bit for bit): RECORDED before
+the first round, RECORDED_CMARL before CoordinatedQ's split hash, stacked tables and graph reuse.
 """
 
 import numpy as np
 import pytest
 
 from models.dcb.cmarl import peer_edges
+from models.dcb.experiment import build_problem
 from models.dcb.mirl import row_max
 from models.dcb.train import train
 
@@ -49,9 +51,10 @@ def test_evaluate_equals_the_former_full_evaluation(small_case, all_entries):
         for got, want in zip(fast, former_evaluate(p, delay, all_entries)):
             assert got.dtype == want.dtype and np.array_equal(got, want)
         hot_seen += ev.hotspots
-        i, j = peer_edges(ev, p.entry_flight[p.relevant if not all_entries else slice(None)], p.n_flights)
+        i, j, degree, pair = peer_edges(ev, p.n_flights)
         fi, fj = former_peer_edges(ev, p.entry_flight[p.relevant if not all_entries else slice(None)], p.n_flights)
-        assert np.array_equal(i, fi) and np.array_equal(j, fj)
+        assert np.array_equal(i, fi) and np.array_equal(j, fj) and np.array_equal(pair, i * p.n_flights + j)
+        assert np.array_equal(degree, np.bincount(np.concatenate([fi, fj]), minlength=p.n_flights))
     assert hot_seen > 0  # the comparison covered hotspots, not only empty pictures
 
 
@@ -76,3 +79,28 @@ def test_same_delays_as_before_the_speed_ups(small_case, method, state, reward):
     r = train(small_case, method, seed=1, episodes=20, state=state, reward=reward)
     d = r.delay_min
     assert (int(d.sum()), int((d * np.arange(1, d.size + 1)).sum()), r.source) == RECORDED[(method, state, reward)]
+
+
+# the same fingerprint, recorded with CoordinatedQ as it was before the split hash, the stacked ground +
+# abstract tables and the graph reuse (one hash per lookup, graph and prior lookups rebuilt every step)
+RECORDED_CMARL = {
+    ("CMARL", "thesis", "thesis", 0): (164, 15924, "best_episode"),
+    ("CMARL", "extended", "difference", 0): (154, 15019, "best_episode"),
+    ("HCMARL", "thesis", "thesis", 0): (134, 12392, "greedy"),
+    ("HCMARL", "extended", "difference", 0): (90, 9198, "greedy"),
+}
+
+
+@pytest.mark.parametrize("method, state, reward, seed", list(RECORDED_CMARL))
+def test_coordinated_learners_same_delays_as_before_the_restructuring(small_case, method, state, reward, seed):
+    r = train(small_case, method, seed=seed, episodes=20, state=state, reward=reward)
+    d = r.delay_min
+    assert (int(d.sum()), int((d * np.arange(1, d.size + 1)).sum()), r.source) == RECORDED_CMARL[(method, state, reward, seed)]
+
+
+def test_full_day_hcmarl_same_delays_as_before_the_restructuring(swiss_tables):
+    """The whole day (1,244 flights, graphs of thousands of edges, hash collisions possible): same delays too."""
+    sectors, flights, entries = swiss_tables
+    r = train(build_problem(entries, sectors, flights, 0.95, 60), "HCMARL", seed=0, episodes=15)
+    d = r.delay_min
+    assert (int(d.sum()), int((d * np.arange(1, d.size + 1)).sum()), r.source) == (1871, 1120341, "best_episode")

@@ -139,15 +139,16 @@ def test_callsigns_fill_split_and_fallback(tmp_path, small_raw):
     an aircraft that never sends one keeps its icao24 as callsign; ids that are not ICAO hex work too."""
     first = small_raw.filter(pl.col("callsign").is_not_null())["icao24"][0]
     one = small_raw.filter(pl.col("icao24") == first).sort("time")
-    clean_ids = ingest(_write(one, tmp_path / "one.parquet"))[0]["flight_id"].unique()
+    clean_tracks = ingest(_write(one, tmp_path / "one.parquet"))[0]
+    clean_ids = clean_tracks["flight_id"].unique()
     n = one.height
     gappy = one.with_columns(callsign=pl.when(pl.int_range(n) % 7 == 3).then(None).otherwise("callsign"))
     gappy_tracks = ingest(_write(gappy, tmp_path / "gappy.parquet"))[0]
     assert gappy_tracks["flight_id"].unique().equals(clean_ids)
     assert set(gappy_tracks["callsign"]) == set(one["callsign"].drop_nulls().str.strip_chars())
-    # a flight of one aircraft relabelled half-way: two flights, each with its own callsign
-    biggest = clean_ids.to_list()[0]
-    tracks = ingest(_write(one, tmp_path / "one2.parquet"))[0].filter(pl.col("flight_id") == biggest)
+    # the aircraft's longest flight relabelled half-way: one flight more, the second half with the new callsign
+    longest = clean_tracks.group_by("flight_id").len().sort("len")["flight_id"][-1]
+    tracks = clean_tracks.filter(pl.col("flight_id") == longest)
     cut = tracks["ts"][tracks.height // 2]
     renamed = one.with_columns(callsign=pl.when(pl.col("time") >= cut).then(pl.lit("NEW123")).otherwise("callsign"))
     split = ingest(_write(renamed, tmp_path / "renamed.parquet"))[0]
@@ -159,3 +160,30 @@ def test_callsigns_fill_split_and_fallback(tmp_path, small_raw):
     assert anon_tracks.height + anon_rejects.height == n
     assert anon_tracks["callsign"].unique().to_list() == ["test-7"]
     assert anon_tracks["flight_id"].n_unique() == clean_ids.len()
+
+
+def test_aircraft_ids_that_parse_alike_stay_apart(tmp_path, small_raw):
+    """'+abcde' and '0abcde' are the same hex number but two aircraft (here flying the same track at the same
+    time: merged, one would be all duplicates); a blank icao24 is a missing one."""
+    one = small_raw.filter(pl.col("icao24") == small_raw["icao24"][0])
+    reference = ingest(_write(one, tmp_path / "ref.parquet"))[0]
+    pair = pl.concat([one.with_columns(icao24=pl.lit(name)) for name in ("+abcde", "0abcde")])
+    tracks, rejects, _ = ingest(_write(pair, tmp_path / "pair.parquet"))
+    assert tracks.height == 2 * reference.height and "duplicate_row" not in set(rejects["reason"])
+    assert set(tracks["icao24"]) == {"+abcde", "0abcde"}
+    blank = pair.with_columns(icao24=pl.when(pl.col("icao24") == "+abcde").then(pl.lit("  ")).otherwise("icao24"))
+    tracks, rejects, _ = ingest(_write(blank, tmp_path / "blank.parquet"))
+    blanked = rejects.filter(pl.col("row_index") < one.height)  # the first copy's rows
+    assert blanked.height == one.height and set(blanked["reason"]) == {"missing_value"}
+    assert set(tracks["icao24"]) == {"0abcde"}
+
+
+def test_flights_shorter_than_the_heading_window(tmp_path, small_raw):
+    """Flights of fewer than 11 points get a flights-table row (no heading-based airport, as before), no error."""
+    from models.aviation.airports import flights_table
+
+    tracks = ingest(_write(small_raw, tmp_path / "all.parquet"))[0]
+    short = tracks.group_by("flight_id", maintain_order=True).head(7)
+    flights = flights_table(short)
+    assert flights.height == tracks["flight_id"].n_unique()
+    assert (flights["n_points"] == 7).all()

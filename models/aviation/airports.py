@@ -109,7 +109,6 @@ def _distance_nm(lat1, lon1, lat2, lon2):
 
 def flights_table(tracks: pl.DataFrame) -> pl.DataFrame:
     """One row per flight with origin/destination (and the distance to them) from its end points."""
-    near = lambda c, i: pl.col(c).get(i)  # noqa: E731  (the i-th point, clipped to the flight's length)
     ends = (
         in_flight_order(tracks)
         # grouped by the run of each flight (contiguous rows): an integer key, cheaper than hashing the ids
@@ -124,14 +123,15 @@ def flights_table(tracks: pl.DataFrame) -> pl.DataFrame:
             lat0=pl.col("lat").first(),
             lon0=pl.col("lon").first(),
             alt0=pl.col("alt_m").first(),
-            # heading from the positions themselves (10 points in): reported track can be missing at the ends
-            lat1=near("lat", pl.min_horizontal(10, pl.len() - 1)),
-            lon1=near("lon", pl.min_horizontal(10, pl.len() - 1)),
+            # heading from the positions themselves (10 points in; none on shorter flights): reported track
+            # can be missing at the ends
+            lat1=pl.col("lat").get(10, null_on_oob=True),
+            lon1=pl.col("lon").get(10, null_on_oob=True),
             latn=pl.col("lat").last(),
             lonn=pl.col("lon").last(),
             altn=pl.col("alt_m").last(),
-            latm=near("lat", pl.max_horizontal(pl.len() - 11, 0)),
-            lonm=near("lon", pl.max_horizontal(pl.len() - 11, 0)),
+            latm=pl.col("lat").get(-11, null_on_oob=True),
+            lonm=pl.col("lon").get(-11, null_on_oob=True),
         )
         .drop("_run")
     )

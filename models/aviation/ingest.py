@@ -79,7 +79,6 @@ TRAFFIC = Schema(
 )
 SCHEMAS = (OPENSKY, TRAFFIC)
 CANONICAL = list(OPENSKY.columns)
-RULE_COLUMNS = ("ts", "lat", "lon", "alt_m", "groundspeed_mps", "onground", "pos_time")  # what the cleaning rules test
 TRACK_COLUMNS = ("row_index", "_ac", "ts", "lat", "lon", "alt_m")  # what the slim frame passes on to the tracks
 
 
@@ -181,7 +180,7 @@ def _timestamps(col: pl.Series, source: str) -> pl.Series:
 
 
 def _tidy_names(names: pl.Series, lower: bool) -> pl.Series:
-    """Strip (and lowercase) names, "" -> null. Done on the distinct values (a few thousand aircraft among
+    """Strip (and lowercase) names, "" -> null (a blank icao24 is a missing one). Done on the distinct values (a few thousand aircraft among
     millions of rows, ~5x cheaper), and not at all when they are already tidy."""
     distinct = names.unique().drop_nulls()
     tidy = distinct.str.strip_chars()
@@ -262,7 +261,7 @@ def _leg_m(lat1, lon1, lat2, lon2) -> pl.Expr:
 def _prev(c: str) -> pl.Expr:
     """Value of the previous row of the same aircraft (rows sorted by aircraft, `_ac` = aircraft id).
 
-    A shift guarded by the run id is the same as `shift(1).over("icao24")` on sorted rows, without a window."""
+    A shift guarded by the aircraft id is the same as `shift(1).over("icao24")` on sorted rows, without a window."""
     return pl.when(pl.col("_ac") == pl.col("_ac").shift(1)).then(pl.col(c).shift(1))
 
 
@@ -343,7 +342,8 @@ def _aircraft_ids(icao24: pl.Series) -> pl.Series:
     """An integer per aircraft that sorts like icao24: the 24-bit address itself when every value is six hex
     digits (as ICAO addresses are), else the dense rank of the string (sorting strings costs 2-3x more)."""
     hex_id = icao24.str.to_integer(base=16, strict=False)
-    if hex_id.null_count() == icao24.null_count() and (icao24.str.len_bytes() == 6).all(ignore_nulls=True):
+    six_digits = (icao24.str.len_bytes() == 6) & ~icao24.str.starts_with("+") & ~icao24.str.starts_with("-")
+    if hex_id.null_count() == icao24.null_count() and six_digits.all(ignore_nulls=True):
         return hex_id.alias("_ac")
     return icao24.rank("dense").cast(pl.Int64).alias("_ac")
 
@@ -358,6 +358,11 @@ def _aircraft_time_order(rows: pl.DataFrame, among: np.ndarray) -> np.ndarray:
     return among[order]
 
 
+def _tested(stage: list[tuple[str, pl.Expr]]) -> set[str]:
+    """Columns the rules of a stage read."""
+    return {c for _, rule in stage for c in rule.meta.root_names()}
+
+
 def _first_match(frame: pl.DataFrame, stage: list[tuple[str, pl.Expr]]) -> tuple[pl.Series, pl.DataFrame]:
     """(rows hit by a rule of the stage, their row_index and reason: the first rule that matches)."""
     # the rule as a small integer: a string per row would cost more than the rules themselves
@@ -368,13 +373,16 @@ def _first_match(frame: pl.DataFrame, stage: list[tuple[str, pl.Expr]]) -> tuple
 
 
 def clean(raw: pl.DataFrame, source: str, cfg: IngestConfig = IngestConfig()) -> tuple[pl.DataFrame, pl.DataFrame]:
-    """Normalised rows -> (cleaned points with flight_id, rejects with reason). Every row ends in one.
+    """Normalised rows (`normalise`'s output: row_index is the row's position) -> (cleaned points with
+    flight_id, rejects with reason). Every row ends in one.
 
     The rules run on a slim frame of the numbers they test, sorted by (aircraft, ts, row_index); the strings
     and the other columns are gathered once, for the rows that survive, in their final order (and for the
     rejects, in theirs)."""
-    rows = raw.select("row_index", _aircraft_ids(raw["icao24"]), *RULE_COLUMNS)
     missing, *stages = _row_rules(cfg)
+    # the slim frame: the columns the rules test and those the tracks take from it
+    slim = set(TRACK_COLUMNS).union(*map(_tested, [missing, *stages]))
+    rows = raw.with_columns(_aircraft_ids(raw["icao24"])).select(c for c in dict.fromkeys([*TRACK_COLUMNS, *raw.columns]) if c in slim)
     # the first stage looks at each row alone, so it runs before the sort, which then orders only the rows left
     hit, rejects = _first_match(rows, missing)
     rejected = [rejects]
@@ -382,8 +390,8 @@ def clean(raw: pl.DataFrame, source: str, cfg: IngestConfig = IngestConfig()) ->
     for i, stage in enumerate(stages):
         hit, rejects = _first_match(kept, stage)
         # carry on only with the columns that the later stages and the tracks use
-        later = {c for _, rule in (r for st in stages[i + 1 :] for r in st) for c in rule.meta.root_names()}
-        kept = kept.select(c for c in kept.columns if c in later | set(TRACK_COLUMNS))
+        later = set(TRACK_COLUMNS).union(*map(_tested, stages[i + 1 :]))
+        kept = kept.select(c for c in kept.columns if c in later)
         if rejects.height:  # a filter copies every column: skip it when the stage rejects nothing
             rejected.append(rejects)
             kept = kept.filter(~hit)

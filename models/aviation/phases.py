@@ -51,7 +51,7 @@ def _vertical_bounds(tracks: pl.DataFrame, flights: pl.DataFrame, cfg: PhaseConf
     ).with_columns(est_s=pl.col("dur_s").median().over("route"))
     f = "_run"
     # each window is materialised once: nested in one expression, polars would evaluate the inner ones again
-    t = tracks.join(duration, on="flight_id", how="left").with_columns(
+    t = tracks.join(duration, on="flight_id", how="left", maintain_order="left").with_columns(
         _alt=pl.col("alt_m").rolling_mean(cfg.smooth_points, center=True, min_samples=1).over(f),
         _dt=pl.col("ts").diff().over(f).dt.total_seconds(fractional=True),
         _elapsed=(pl.col("ts") - pl.col("ts").first().over(f)).dt.total_seconds(fractional=True),
@@ -71,7 +71,7 @@ def _region_bounds(tracks: pl.DataFrame, flights: pl.DataFrame, airports: pl.Dat
     ends = flights.select("flight_id", "origin", "destination").join(
         ap.rename({"icao": "origin", "lat": "o_lat", "lon": "o_lon"}), on="origin", how="left"
     ).join(ap.rename({"icao": "destination", "lat": "d_lat", "lon": "d_lon"}), on="destination", how="left")
-    t = tracks.join(ends, on="flight_id", how="left")
+    t = tracks.join(ends, on="flight_id", how="left", maintain_order="left")
     from_origin = _haversine_km(pl.col("lat"), pl.col("lon"), pl.col("o_lat"), pl.col("o_lon"))
     to_dest = _haversine_km(pl.col("lat"), pl.col("lon"), pl.col("d_lat"), pl.col("d_lon"))
     t = t.with_columns(climb_end=_first_ts_where(from_origin.fill_null(float("inf")) > cfg.climb_radius_km))

@@ -54,7 +54,7 @@ def resample(tracks: pl.DataFrame, dt_s: float = 20.0) -> pl.DataFrame:
         if mask_key not in searches:
             pos = None if everywhere else np.flatnonzero(ok)
             xp = key_src if everywhere else key_src[pos]
-            j = np.clip(np.searchsorted(xp, key_dst, side="right") - 1, 0, max(len(xp) - 2, 0))
+            j = np.clip(np.searchsorted(xp, key_dst, side="right") - 1, 0, len(xp) - 1)
             k = np.minimum(j + 1, len(xp) - 1)
             gap = None
             if not everywhere:
@@ -71,7 +71,7 @@ def resample(tracks: pl.DataFrame, dt_s: float = 20.0) -> pl.DataFrame:
 
     def interp(values: np.ndarray, turn: float | None = None) -> np.ndarray:
         """np.interp over each flight's valid values (bit-identical: its slope-times-offset arithmetic and the
-        left value on an exact hit); with `turn` (360) an angle, interpolated along the shorter arc."""
+        left value on an exact hit); with `turn` (360) an angle, interpolated along the shorter arc (not wrapped)."""
         ok = ~np.isnan(values)
         if not ok.any():
             return np.full(len(key_dst), np.nan)
@@ -81,8 +81,6 @@ def resample(tracks: pl.DataFrame, dt_s: float = 20.0) -> pl.DataFrame:
             rise = (rise + turn / 2) % turn - turn / 2
         with np.errstate(invalid="ignore", divide="ignore"):
             out = np.where(dx == 0, values[j], rise / h * dx + values[j])
-        if turn is not None:
-            out %= turn
         if gap is not None:
             out[gap] = np.nan
         return out
@@ -98,7 +96,7 @@ def resample(tracks: pl.DataFrame, dt_s: float = 20.0) -> pl.DataFrame:
             "alt_m": interp(col("alt_m")),
             "groundspeed_mps": interp(col("groundspeed_mps")),
             # a heading of 359 deg then 1 deg turns through north
-            "track_deg": interp(col("track_deg"), turn=360.0),
+            "track_deg": interp(col("track_deg"), turn=360.0) % 360.0,
             "vertical_rate_mps": interp(col("vertical_rate_mps")),
         }
     )

@@ -94,7 +94,7 @@ class CoordinatedQ:
         self._hash_j = np.stack([m.astype(u) * _GOLDEN for s, m in self.levels])  # [L, state] s_j·G
         self._hash_pair = np.array([s * s for s, _ in self.levels], dtype=u)[:, None] * _GOLDEN  # [L, 1] S²·G
         self._level_offset = np.arange(len(self.levels))[:, None]  # [L, 1]
-        self._graph, self._next, self._4e = None, None, np.zeros(0, dtype=np.int64)
+        self._graph, self._next, self._now, self._4e = None, None, None, np.zeros(0, dtype=np.int64)
 
     def _graph_of(self, ev) -> _Graph:
         signature = hot_entry_codes(ev, self.n_flights)
@@ -125,7 +125,10 @@ class CoordinatedQ:
         return rows, q[0] + q[1], q[1]
 
     def values(self, state: np.ndarray, agents: np.ndarray, ev) -> np.ndarray:
-        """Q_i(s_i, ·) of the acting agents from their edges (Eq 5.9) -> [agents, 2]."""
+        """Q_i(s_i, ·) of the acting agents from their edges (Eq 5.9) -> [agents, 2].
+
+        When `state` is the very array the last `update` got as next state (as `run_episode` passes it) and
+        the graph is unchanged, that update's lookup is reused: callers must not modify it in place."""
         g = self._graph_of(ev)
         n_edges, n = g.ij.size // 2, self.n_flights
         if self._next is not None and state is self._next[0]:  # same graph, state = the update's next state

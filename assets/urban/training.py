@@ -56,7 +56,7 @@ def urban_training(context: dg.AssetExecutionContext, config: TrainingConfig, ur
     episodes, seeds = config.episodes or prof["episodes"], config.seeds if config.seeds is not None else prof["seeds"]
     only_on = config.method_scenarios if config.method_scenarios is not None else prof["method_scenarios"]
     train = urban_scenarios.filter(pl.col("role") == "train")
-    frames, timings = [], {}
+    frames, timings, learner_cpu = [], {}, {}  # learner CPU: this process (gradient steps), whatever the machine's load
     with EpisodePool(config.workers or default_workers(), col_marl.run_episode) as pool:
         for (scenario,), g in train.group_by("scenario", maintain_order=True):
             copies = [(files_of(r), r["n_vehicles"]) for r in g.iter_rows(named=True)]
@@ -65,7 +65,7 @@ def urban_training(context: dg.AssetExecutionContext, config: TrainingConfig, ur
                 if scenario not in only_on.get(method, [scenario]):
                     continue
                 for seed in seeds:
-                    t = time.perf_counter()
+                    t, cpu = time.perf_counter(), time.process_time()
                     log = lambda msg: context.log.info(f"{scenario} seed {seed}: {msg}")  # noqa: E731
                     params, rows = col_marl.train(copies, agents, METHODS_RL[method], episodes, seed, pool, log, config.leader_guard,
                                                     config.gradient_steps)
@@ -74,13 +74,15 @@ def urban_training(context: dg.AssetExecutionContext, config: TrainingConfig, ur
                                 "seed": seed, "episodes": episodes, "leader_guard": config.leader_guard,
                                 "gradient_steps": config.gradient_steps}, path)
                     timings[f"{scenario}/{method}/seed{seed}"] = round(time.perf_counter() - t, 1)
+                    learner_cpu[f"{scenario}/{method}/seed{seed}"] = round(time.process_time() - cpu, 1)
                     frames.append(pl.DataFrame(rows).with_columns(
                         scenario=pl.lit(scenario), method=pl.lit(method), seed=pl.lit(seed, pl.Int64), model_path=pl.lit(str(path))))
     df = pl.concat(frames).select("scenario", "method", "seed", "agent", "episode", "return", "epsilon", "loss", "model_path")
     last = df.filter(pl.col("episode") >= episodes - max(episodes // 10, 1)).group_by("scenario", "method").agg(
         pl.col("return").mean().alias("mean_return_last_10pct"))
     context.log.info(f"trained {len(timings)} policy sets in {sum(timings.values()):.0f} s: {timings}")
-    return dg.Output(df, metadata={"train_seconds": dg.MetadataValue.json(timings), "episodes": episodes, "leader_guard": config.leader_guard,
+    return dg.Output(df, metadata={"train_seconds": dg.MetadataValue.json(timings), "learner_cpu_seconds": dg.MetadataValue.json(learner_cpu),
+                                   "episodes": episodes, "leader_guard": config.leader_guard,
                                    "final_returns": dg.MetadataValue.json(last.to_dicts()), "workers": config.workers or default_workers()})
 
 

@@ -143,6 +143,7 @@ class Ch3Env(UrbanParallelEnv):
     def __init__(self, files, variant: str = "ch3", sumo_seed: int = 0, record: bool = False, leader_guard: bool = False):
         super().__init__(files, "ind", sumo_seed, record, leader_guard=False)  # its own speed mode below, IDM vehicle types
         self.variant, self.speed_mode = "ch3", SPEED_MODE_LIMITED
+        self.positions = True  # the collision matrix needs where everyone is
         self._obs_space = gymnasium.spaces.Box(-np.inf, np.inf, (STATE_DIM,), np.float32)
         self._act_space = gymnasium.spaces.Discrete(len(SPEEDS_MPS))
         self.geo = geometry(files.net)
@@ -211,8 +212,8 @@ class RouteAgentsDQNCNN(nn.Module):
             "c_w2": init(CNN_HIDDEN, n_act, fan_in=CNN_HIDDEN), "c_b2": init(n_act, fan_in=CNN_HIDDEN),
         })
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return q_forward(dict(self.p), x)
+    def forward(self, x: torch.Tensor, agents: slice = slice(None)) -> torch.Tensor:
+        return q_forward({k: v[agents] for k, v in self.p.items()}, x)
 
 
 def q_values(params: dict[str, np.ndarray], states: np.ndarray, agent_idx: np.ndarray) -> np.ndarray:

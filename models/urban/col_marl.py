@@ -41,6 +41,7 @@ GRADIENT_STEPS_PER_EPISODE = 40
 # Q is learnt on rewards / L (same greedy policy): with rewards of ±L = ±100 the tanh net's output layer would
 # need ~1,000 Adam steps at lr 1e-3 just to reach the scale of Q, more than the demo's whole budget
 REWARD_SCALE = 1.0 / GOAL_REWARD
+CHUNK_ROWS = 20_000  # batch rows (agents x transitions) per forward/backward pass of a gradient step: speed only
 
 
 class RouteAgentsQ(nn.Module):
@@ -56,10 +57,13 @@ class RouteAgentsQ(nn.Module):
         self.w1, self.b1 = init(n_agents, state_dim, HIDDEN, fan_in=state_dim), init(n_agents, HIDDEN, fan_in=state_dim)
         self.w2, self.b2 = init(n_agents, HIDDEN, N_ACTIONS, fan_in=HIDDEN), init(n_agents, N_ACTIONS, fan_in=HIDDEN)
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """x [agent, batch, state] -> Q [agent, batch, action]."""
-        h = torch.tanh(torch.baddbmm(self.b1[:, None], x, self.w1))
-        return torch.baddbmm(self.b2[:, None], h, self.w2)
+    def forward(self, x: torch.Tensor, agents: slice = slice(None)) -> torch.Tensor:
+        """x [agent, batch, state] -> Q [agent, batch, action] of the route agents `agents` = tanh(x w1 + b1) w2 + b2,
+        computed as σ(x 2w1 + 2b1) 2w2 + (b2 - Σ_h w2): tanh(z) = 2σ(2z) - 1 folded into the small weight tensors,
+        because torch's CPU tanh costs 3x its sigmoid and was 40 % of a gradient step (same function and gradients)."""
+        w1, b1, w2, b2 = self.w1[agents], self.b1[agents], self.w2[agents], self.b2[agents]
+        s = torch.sigmoid(torch.baddbmm(2 * b1[:, None], x, 2 * w1))
+        return torch.baddbmm((b2 - w2.sum(dim=1))[:, None], s, 2 * w2)
 
 
 def q_values(params: dict[str, np.ndarray], states: np.ndarray, agent_idx: np.ndarray) -> np.ndarray:
@@ -78,6 +82,7 @@ class Kit:
     env: type  # PettingZoo parallel env: (files, variant, sumo_seed=, record=, leader_guard=)
     buffer_size: int
     gradient_steps: int  # per episode
+    n_actions: int
 
 
 def kit(variant: str) -> Kit:
@@ -86,10 +91,10 @@ def kit(variant: str) -> Kit:
         from models.urban import cnn_marl  # imports this module: loaded on demand
 
         return Kit(cnn_marl.RouteAgentsDQNCNN, cnn_marl.q_values, cnn_marl.STATE_DIM, cnn_marl.Ch3Env, cnn_marl.BUFFER_SIZE,
-                   cnn_marl.GRADIENT_STEPS_PER_EPISODE)
+                   cnn_marl.GRADIENT_STEPS_PER_EPISODE, len(cnn_marl.SPEEDS_MPS))
     if variant not in STATE_DIM:
         raise ValueError(f"variant {variant!r}: expected one of {sorted([*STATE_DIM, 'ch3'])}")
-    return Kit(RouteAgentsQ, q_values, STATE_DIM[variant], UrbanParallelEnv, BUFFER_SIZE, GRADIENT_STEPS_PER_EPISODE)
+    return Kit(RouteAgentsQ, q_values, STATE_DIM[variant], UrbanParallelEnv, BUFFER_SIZE, GRADIENT_STEPS_PER_EPISODE, N_ACTIONS)
 
 
 # --- one episode (runs in a worker process) -------------------------------------------------------
@@ -160,48 +165,82 @@ def run_episode(job: EpisodeJob) -> EpisodeResult:
 
 
 class ReplayBuffers:
-    """One ring buffer per route agent, stored as [agent, slot, ...] arrays."""
+    """One ring buffer per route agent, stored as [agent, slot, ...] arrays. It also keeps the target network's
+    Q(s', ·) of every stored transition: the target network changes only every TARGET_EVERY_EPISODES episodes,
+    so its forward pass is done once per new transition and per target update (`refresh`) rather than on every
+    sampled batch of every gradient step (a third of a step's cost; the same values up to float rounding)."""
 
-    def __init__(self, n_agents: int, state_dim: int, size: int = BUFFER_SIZE):
+    def __init__(self, n_agents: int, state_dim: int, size: int, n_actions: int):
         self.capacity = size
         self.state = np.zeros((n_agents, size, state_dim), np.float32)
         self.next_state = np.zeros_like(self.state)
-        self.action = np.zeros((n_agents, BUFFER_SIZE), np.int64)
-        self.reward = np.zeros((n_agents, BUFFER_SIZE), np.float32)
-        self.done = np.zeros((n_agents, BUFFER_SIZE), np.float32)
+        self.action = np.zeros((n_agents, size), np.int64)
+        self.reward = np.zeros((n_agents, size), np.float32)
+        self.done = np.zeros((n_agents, size), np.float32)
+        self.target_q = np.zeros((n_agents, size, n_actions), np.float32)  # target network's Q(next_state, ·)
         self.size = np.zeros(n_agents, np.int64)
         self.head = np.zeros(n_agents, np.int64)
 
-    def add(self, t: dict) -> None:
-        for k in np.unique(t["agent_idx"]):
+    def add(self, t: dict, target: nn.Module) -> None:
+        new = np.bincount(t["agent_idx"], minlength=len(self.size))
+        if not new.any():
+            return
+        for k in np.flatnonzero(new):
             sel = t["agent_idx"] == k
-            n = int(sel.sum())
-            slots = (self.head[k] + np.arange(n)) % self.capacity
+            slots = (self.head[k] + np.arange(new[k])) % self.capacity
             self.state[k, slots], self.next_state[k, slots] = t["state"][sel], t["next_state"][sel]
             self.action[k, slots], self.reward[k, slots], self.done[k, slots] = t["action"][sel], t["reward"][sel] * REWARD_SCALE, t["done"][sel]
-            self.head[k] = (self.head[k] + n) % self.capacity
-            self.size[k] = min(self.size[k] + n, self.capacity)
+        # the new slots of every agent, padded to the longest run with its last one: one batched forward pass
+        slots = (self.head[:, None] + np.minimum(np.arange(new.max()), np.maximum(new - 1, 0)[:, None])) % self.capacity
+        self._set_target_q(target, slots, np.arange(new.max()) < new[:, None])
+        self.head = (self.head + new) % self.capacity
+        self.size = np.minimum(self.size + new, self.capacity)
+
+    def refresh(self, target: nn.Module, chunk: int = BATCH_SIZE) -> None:
+        """Recompute the stored target Q after a target-network update, `chunk` slots per agent at a time."""
+        filled = int(self.size.max())
+        for start in range(0, filled, chunk):
+            slots = np.tile(np.arange(start, min(start + chunk, filled)), (len(self.size), 1))
+            self._set_target_q(target, slots, slots < self.size[:, None])
+
+    def _set_target_q(self, target: nn.Module, slots: np.ndarray, valid: np.ndarray) -> None:
+        rows = np.arange(len(self.size))[:, None]
+        with torch.no_grad():
+            q = target(torch.from_numpy(self.next_state[rows, slots])).numpy()
+        k, j = np.nonzero(valid)
+        self.target_q[k, slots[k, j]] = q[k, j]
 
     def sample(self, rng: np.random.Generator, batch: int):
         """`batch` transitions of every agent (drawn with replacement); agents with an empty buffer are masked."""
-        slots = (rng.random((len(self.size), batch)) * np.maximum(self.size, 1)[:, None]).astype(np.int64)
-        rows = np.arange(len(self.size))[:, None]
-        tensors = [torch.from_numpy(a[rows, slots]) for a in (self.state, self.action, self.reward, self.next_state, self.done)]
+        n = len(self.size)
+        slots = (rng.random((n, batch)) * np.maximum(self.size, 1)[:, None]).astype(np.int64)
+        flat = (slots + np.arange(n)[:, None] * self.capacity).ravel()  # `take` on flat rows: 2-3x faster than a[rows, slots]
+        tensors = [torch.from_numpy(a.reshape(n * self.capacity, -1).take(flat, axis=0).reshape(n, batch, *a.shape[2:]))
+                   for a in (self.state, self.action, self.reward, self.next_state, self.target_q, self.done)]
         return (*tensors, torch.from_numpy(self.size > 0))
 
 
-def dqn_update(q: RouteAgentsQ, target: RouteAgentsQ, optimiser, batch) -> np.ndarray:
-    """One double-DQN step for all route agents: y = r + γ (1 - done) Q_target(s', argmax_a Q(s', a))."""
-    state, action, reward, next_state, done, has_data = batch
-    with torch.no_grad():
-        best_next = q(next_state).argmax(dim=2, keepdim=True)
-        y = reward + GAMMA * (1.0 - done) * target(next_state).gather(2, best_next).squeeze(2)
-    q_taken = q(state).gather(2, action[..., None]).squeeze(2)
-    per_agent = ((q_taken - y) ** 2).mean(dim=1) * has_data  # sum of per-agent MSE: agents stay independent
+def dqn_update(q: nn.Module, optimiser, batch) -> np.ndarray:
+    """One double-DQN step for all route agents: y = r + γ (1 - done) Q_target(s', argmax_a Q(s', a)), with
+    Q_target(s', ·) as stored by ReplayBuffers. The agents' losses are independent, so their gradients are computed
+    CHUNK_ROWS batch rows at a time (a few agents), which keeps the hidden activations in the CPU's cache: 2x faster
+    for 40 agents at batch 2,500 than one pass over the whole stack."""
+    state, action, reward, next_state, target_q_next, done, has_data = batch
+    n_agents, batch_size = action.shape
+    per_chunk = max(CHUNK_ROWS // batch_size, 1)
     optimiser.zero_grad()
-    per_agent.sum().backward()
+    losses = []
+    for first in range(0, n_agents, per_chunk):
+        a = slice(first, first + per_chunk)
+        with torch.no_grad():
+            best_next = q(next_state[a], a).argmax(dim=2, keepdim=True)
+            y = reward[a] + GAMMA * (1.0 - done[a]) * target_q_next[a].gather(2, best_next).squeeze(2)
+        q_taken = q(state[a], a).gather(2, action[a, :, None]).squeeze(2)
+        per_agent = ((q_taken - y) ** 2).mean(dim=1) * has_data[a]  # sum of per-agent MSE: agents stay independent
+        per_agent.sum().backward()  # adds this chunk's agents' gradients; the others' stay untouched
+        losses.append(per_agent.detach())
     optimiser.step()
-    return np.where(has_data.numpy(), per_agent.detach().numpy(), np.nan)  # loss of each route agent
+    return np.where(has_data.numpy(), torch.cat(losses).numpy(), np.nan)  # loss of each route agent
 
 
 def numpy_params(q: RouteAgentsQ) -> dict[str, np.ndarray]:
@@ -237,7 +276,7 @@ def train(
     q, target = spec.network(len(agents), spec.state_dim, gen), spec.network(len(agents), spec.state_dim, gen)
     target.load_state_dict(q.state_dict())
     optimiser = torch.optim.Adam(q.parameters(), lr=LEARNING_RATE)
-    buffers = ReplayBuffers(len(agents), spec.state_dim, spec.buffer_size)
+    buffers = ReplayBuffers(len(agents), spec.state_dim, spec.buffer_size, spec.n_actions)
     steps = gradient_steps or spec.gradient_steps
     rows: list[dict] = []
     workers = getattr(run_parallel, "workers", 1)
@@ -252,11 +291,12 @@ def train(
         ]
         for job, result in zip(jobs, run_parallel(jobs)):
             if len(result.transitions["agent_idx"]):
-                buffers.add(result.transitions)
+                buffers.add(result.transitions, target)
             batch = min(BATCH_SIZE, int(buffers.size.max()))  # early on, no bigger than the fullest buffer
-            losses = np.mean([dqn_update(q, target, optimiser, buffers.sample(rng, batch)) for _ in range(steps)], axis=0)
+            losses = np.mean([dqn_update(q, optimiser, buffers.sample(rng, batch)) for _ in range(steps)], axis=0)
             if (episode + 1) % TARGET_EVERY_EPISODES == 0:
                 target.load_state_dict(q.state_dict())
+                buffers.refresh(target)
             rows += [
                 {"agent": a, "episode": episode, "return": float(result.agent_return[k]), "epsilon": job.epsilon,
                  "loss": float(losses[k])}

@@ -58,6 +58,7 @@ MAX_F_D = SAFE_DIST_M / MIN_FVEH_DIST_M  # f(d) <= 20 whatever the rule: a longe
 INTER_TIME_S = 1.5  # two vehicles reaching a junction closer in time than this are predicted to collide
 POS_SCALE_M, LEADER_SCALE_M = 200.0, 200.0
 STATE_DIM = {"col": 6, "ind": 4}
+_CAR_MPS2, _HEAVY_MPS2 = np.array(ACTIONS_MPS2["car"]), np.array(ACTIONS_MPS2["heavy"])
 
 
 def junction_terms(junction: np.ndarray, road: np.ndarray, dist_m: np.ndarray, speed: np.ndarray, incoming_lanes: np.ndarray):
@@ -115,6 +116,7 @@ class UrbanParallelEnv(ParallelEnv):
         if variant not in STATE_DIM:
             raise ValueError(f"variant {variant!r}: expected one of {sorted(STATE_DIM)}")
         self.files, self.variant, self.sumo_seed, self.record = files, variant, sumo_seed, record
+        self.positions = record  # x, y and acceleration are read only for recordings (the state does not use them)
         # Krauss: its safe speed is only the stopping-distance bound behind the leader (IDM's would impose IDM's acceleration law)
         self.speed_mode, self.driver_model = (SPEED_MODE_CAR_FOLLOWING, "Krauss") if leader_guard else (SPEED_MODE_FREE, "IDM")
         text = Path(files.routes).read_text()
@@ -196,7 +198,7 @@ class UrbanParallelEnv(ParallelEnv):
     def _observe(self):
         """State and reward of every vehicle on the road; hands vehicles past their last junction to the fixed rule."""
         sim, idx = self.sim, self.sim.index
-        snap = sim.snapshot()
+        snap = sim.snapshot(self.positions)
         self._last = snap
         if self.record:
             self.frames.append(snap)
@@ -227,12 +229,13 @@ class UrbanParallelEnv(ParallelEnv):
 
     def _apply(self, ids: list, action: np.ndarray, speed: np.ndarray) -> None:
         """Table 4.1: the chosen acceleration, held for the next second."""
-        table = np.array([ACTIONS_MPS2["car" if ".car." in v else "heavy"] for v in ids])
-        accel = table[np.arange(len(ids)), action]
+        is_car = np.array([".car." in v for v in ids])
+        accel = np.where(is_car, _CAR_MPS2[action], _HEAVY_MPS2[action])
         # speed mode 32 follows orders beyond the limits: keep 0 <= v <= vel_max over the held second
         accel = np.clip(accel, -speed / ACTION_S, (self.vmax - speed) / ACTION_S)
-        for v, a in zip(ids, accel):
-            self.sim.ls.vehicle.setAcceleration(v, float(a), ACTION_S)
+        set_acceleration = self.sim.ls.vehicle.setAcceleration
+        for v, a in zip(ids, accel.tolist()):
+            set_acceleration(v, a, ACTION_S)
 
     def individual_state(self, snap, dist: np.ndarray) -> np.ndarray:
         """[vel / vel_max, pos / 200 m, fveh_dist / 200 m, fveh_vel / vel_max] (-1: no front vehicle)."""

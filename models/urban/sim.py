@@ -11,6 +11,7 @@ episodes need processes (see models.urban.parallel). Facts measured on libsumo 1
 """
 
 import functools
+import itertools
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -112,6 +113,7 @@ class Simulation:
             if not Path(p).exists():
                 raise UrbanInputError(f"{p}: scenario file not found")
         self.index = NetIndex(files.net)
+        self._road_of: dict = {}  # lane -> road, instead of a getRoadID call per vehicle and decision
         self.max_time_s = files.last_depart_s + SLACK_S
 
     def start(self) -> None:
@@ -161,47 +163,58 @@ class Simulation:
             tally.vehicle_substeps += ls.vehicle.getIDCount()
         return departed
 
-    def snapshot(self) -> Snapshot:
-        """All vehicles now, read once per decision with libsumo getters (a subscription would be recomputed
-        by SUMO at every 0.2 s sub-step: 2-3x slower), as one numeric array; also samples speed and fuel
-        for the metrics."""
+    def snapshot(self, positions: bool = True) -> Snapshot:
+        """All vehicles now, read once per decision with libsumo getters (subscriptions are recomputed by SUMO at
+        every 0.2 s sub-step, and a context subscription set for the last sub-step only costs more than it saves:
+        measured), one `map` per getter over all vehicles; also samples speed and fuel for the metrics.
+        positions=False leaves x, y and accel as NaN (two getters fewer per vehicle: the RL state does not use them)."""
         veh = self.ls.vehicle
         ids = list(veh.getIDList())
-        leaders = [veh.getLeader(v, LEADER_LOOKAHEAD_M) for v in ids]
-        vals = [(veh.getLaneID(v), veh.getRoadID(v), ld[0] if ld and ld[0] else "") for v, ld in zip(ids, leaders)]
+
+        def each(getter):
+            return np.fromiter(map(getter, ids), float, len(ids))
+
+        speed = each(veh.getSpeed)
+        leaders = list(map(veh.getLeader, ids, itertools.repeat(LEADER_LOOKAHEAD_M)))
+        lane = list(map(veh.getLaneID, ids))
+        road = [self._road_of.get(ln) or self._road_of.setdefault(ln, ln.rpartition("_")[0]) for ln in lane]  # lane ids are <road>_<index>
+        lane_pos, route_index, fuel = each(veh.getLanePosition), each(veh.getRouteIndex), each(veh.getFuelConsumption)
+        if positions:
+            xy, accel = np.array(list(map(veh.getPosition, ids)), float).reshape(-1, 2), each(veh.getAcceleration)
+        else:
+            xy, accel = np.full((len(ids), 2), np.nan), np.full(len(ids), np.nan)
         # getLeader's distance excludes the follower's minGap: add it back so the gap is bumper to bumper
         # (otherwise a leader closer than minGap would read as negative, i.e. as "no leader")
-        num = np.array(
-            [(veh.getSpeed(v), veh.getLanePosition(v), veh.getRouteIndex(v), *veh.getPosition(v), veh.getAcceleration(v),
-              veh.getFuelConsumption(v), max(ld[1] + MIN_GAP_M, 0.0) if ld and ld[0] else -1.0) for v, ld in zip(ids, leaders)],
-            float,
-        ).reshape(-1, 8)
+        lead_id = [ld[0] if ld and ld[0] else "" for ld in leaders]
+        leader_dist = np.array([max(ld[1] + MIN_GAP_M, 0.0) if li else -1.0 for ld, li in zip(leaders, lead_id)], float)
         # vehicles being teleported are off the network (speed = SUMO's invalid value): left out
-        ok = num[:, 0] >= 0
+        ok = speed >= 0
         if not ok.all():
             keep = np.flatnonzero(ok)
-            ids, vals, num = [ids[i] for i in keep], [vals[i] for i in keep], num[ok]
-        lead_id = [r[2] for r in vals]
-        speed_of = dict(zip(ids, num[:, 0]))
+            ids, lane, road, lead_id = ([x[i] for i in keep] for x in (ids, lane, road, lead_id))
+            speed, lane_pos, route_index, fuel, xy, accel, leader_dist = (
+                x[ok] for x in (speed, lane_pos, route_index, fuel, xy, accel, leader_dist))
+        speed_of = dict(zip(ids, speed))
+        lane_length = self.index.lane_length
         snap = Snapshot(
             t=self.ls.simulation.getTime(),
             ids=ids,
-            speed=num[:, 0],
-            lane_pos=num[:, 1],
-            lane_len=np.array([self.index.lane_length.get(r[0], 0.0) for r in vals]),
-            lane=[r[0] for r in vals],
-            road=[r[1] for r in vals],
-            route_index=num[:, 2].astype(int),
-            x=num[:, 3],
-            y=num[:, 4],
-            accel=num[:, 5],
-            fuel_mgps=num[:, 6],
-            leader_dist=num[:, 7],
-            leader_speed=np.array([speed_of.get(li, -1.0) if li else -1.0 for li in lead_id]),
+            speed=speed,
+            lane_pos=lane_pos,
+            lane_len=np.array([lane_length.get(ln, 0.0) for ln in lane], float),
+            lane=lane,
+            road=road,
+            route_index=route_index.astype(int),
+            x=xy[:, 0],
+            y=xy[:, 1],
+            accel=accel,
+            fuel_mgps=fuel,
+            leader_dist=leader_dist,
+            leader_speed=np.array([speed_of.get(li, -1.0) if li else -1.0 for li in lead_id], float),
         )
-        density = np.array([_fuel_density(v) for v in ids])
-        self.tally.speed_sum += float(snap.speed.sum())
-        self.tally.fuel_ml_sum += float((snap.fuel_mgps / density).sum()) if ids else 0.0
+        density = np.fromiter(map(_fuel_density, ids), float, len(ids))
+        self.tally.speed_sum += float(speed.sum())
+        self.tally.fuel_ml_sum += float((fuel / density).sum()) if ids else 0.0
         self.tally.samples += len(ids)
         return snap
 

@@ -72,6 +72,29 @@ def test_same_seed_same_episode(tmp_path, sc1_net):
     assert not np.array_equal(a.transitions["action"], c.transitions["action"])
 
 
+def test_snapshot_reads_what_the_getters_say(tmp_path, sc1_net):
+    # the snapshot derives each vehicle's road from its lane id and skips x, y and accel unless asked for them
+    sim = Simulation(make_copy(tmp_path / "c", sc1_net, 20, 40.0)[0], model="Krauss", seed=0)
+    sim.start()
+    try:
+        seen_internal = False
+        for _ in range(30):
+            sim.advance(1.0)
+            full, light = sim.snapshot(), sim.snapshot(positions=False)
+            veh = sim.ls.vehicle
+            assert full.road == [veh.getRoadID(v) for v in full.ids]
+            assert full.x.tolist() == [veh.getPosition(v)[0] for v in full.ids]
+            assert full.accel.tolist() == [veh.getAcceleration(v) for v in full.ids]
+            seen_internal |= any(r.startswith(":") for r in full.road)
+            for k in ("speed", "lane_pos", "lane_len", "route_index", "leader_dist", "leader_speed", "fuel_mgps"):
+                assert np.array_equal(getattr(full, k), getattr(light, k)), k
+            assert full.ids == light.ids and full.lane == light.lane and full.road == light.road
+            assert np.isnan(light.x).all() and np.isnan(light.accel).all()
+        assert seen_internal  # a vehicle inside the junction: its road is the internal edge
+    finally:
+        sim.close()
+
+
 def test_pettingzoo_parallel_api(tmp_path, sc1_net):
     from pettingzoo.test import parallel_api_test
 

@@ -3,7 +3,8 @@
 import numpy as np
 import torch
 
-from models.urban.col_marl import RouteAgentsQ, dqn_update, kit, run_episode, train
+from models.urban import col_marl
+from models.urban.col_marl import ReplayBuffers, RouteAgentsQ, dqn_update, kit, run_episode, train
 from models.urban.parallel import EpisodePool
 from urban_fixtures import make_copy
 
@@ -35,13 +36,13 @@ def test_i_marl_sees_four_state_terms(tmp_path, sc1_net):
 
 def test_each_route_agent_learns_only_from_its_own_data():
     gen = torch.Generator().manual_seed(0)
-    q, target = RouteAgentsQ(3, 6, gen), RouteAgentsQ(3, 6, gen)
+    q = RouteAgentsQ(3, 6, gen)
     before = {k: v.detach().clone() for k, v in q.state_dict().items()}
     opt = torch.optim.Adam(q.parameters(), lr=1e-3)
     n = 8
-    batch = (torch.rand(3, n, 6), torch.randint(0, 5, (3, n)), torch.rand(3, n), torch.rand(3, n, 6), torch.zeros(3, n),
+    batch = (torch.rand(3, n, 6), torch.randint(0, 5, (3, n)), torch.rand(3, n), torch.rand(3, n, 6), torch.rand(3, n, 5), torch.zeros(3, n),
              torch.tensor([True, False, True]))
-    loss = dqn_update(q, target, opt, batch)
+    loss = dqn_update(q, opt, batch)
     assert np.isnan(loss[1]) and np.isfinite(loss[0])
     after = q.state_dict()
     assert torch.equal(after["w1"][1], before["w1"][1])  # agent 1 had no data: untouched
@@ -56,3 +57,49 @@ def test_gradient_steps_per_episode_are_configurable(tmp_path, sc1_net):
     init = RouteAgentsQ(len(agents), 6, torch.Generator().manual_seed(0)).w1.detach().numpy()
     # one Adam step moves each trained weight by about lr; 40 steps move them further
     assert np.abs(default["w1"] - init).max() > 5 * np.abs(one["w1"] - init).max() > 0
+
+
+def test_stacked_q_is_the_tanh_network_and_chunked_gradients_equal_one_pass(monkeypatch):
+    gen = torch.Generator().manual_seed(0)
+    q = RouteAgentsQ(5, 6, gen)
+    x = torch.rand(5, 7, 6)
+    p = {k: v.detach().double() for k, v in q.state_dict().items()}
+    reference = torch.tanh(x.double() @ p["w1"] + p["b1"][:, None]) @ p["w2"] + p["b2"][:, None]  # §4.3.1's tanh layer
+    torch.testing.assert_close(q(x).double(), reference, rtol=1e-5, atol=1e-6)
+    torch.testing.assert_close(q(x[1:3], slice(1, 3)), q(x)[1:3])
+    batch = (x, torch.randint(0, 5, (5, 7)), torch.rand(5, 7), torch.rand(5, 7, 6), torch.rand(5, 7, 5), torch.zeros(5, 7),
+             torch.tensor([True, True, False, True, True]))
+    grads, losses = [], []
+    for rows in (10**6, 14):  # one pass over the stack, then 2 agents per pass
+        monkeypatch.setattr(col_marl, "CHUNK_ROWS", rows)
+        net = RouteAgentsQ(5, 6, torch.Generator().manual_seed(0))
+        losses.append(dqn_update(net, torch.optim.SGD(net.parameters(), lr=0.0), batch))
+        grads.append({k: v.grad.clone() for k, v in net.named_parameters()})
+    np.testing.assert_allclose(losses[0], losses[1], rtol=1e-6)
+    for k in grads[0]:
+        torch.testing.assert_close(grads[0][k], grads[1][k])
+    assert np.isnan(losses[0][2]) and not grads[0]["w1"][2].any()
+
+
+def test_replay_buffers_keep_the_target_networks_q_of_every_next_state():
+    gen = torch.Generator().manual_seed(0)
+    target = RouteAgentsQ(3, 6, gen)
+    buffers = ReplayBuffers(3, 6, size=10, n_actions=5)
+    rng = np.random.default_rng(0)
+    for n in (7, 9):  # the second episode wraps agent 0's ring
+        agent = np.array([0] * (n - 2) + [2, 2])
+        buffers.add({"agent_idx": agent, "state": rng.random((n, 6), np.float32), "action": rng.integers(0, 5, n),
+                     "reward": rng.random(n, np.float32), "next_state": rng.random((n, 6), np.float32), "done": np.zeros(n, np.float32)}, target)
+
+    def check():
+        with torch.no_grad():
+            expected = target(torch.from_numpy(buffers.next_state)).numpy()
+        for k, size in enumerate(buffers.size):
+            np.testing.assert_allclose(buffers.target_q[k, :size], expected[k, :size], rtol=1e-5, atol=1e-6)
+
+    assert buffers.size.tolist() == [10, 0, 4]
+    check()
+    with torch.no_grad():
+        target.w1.add_(1.0)  # a target-network update
+    buffers.refresh(target, chunk=3)
+    check()

@@ -3,6 +3,7 @@
 tracks_20s, trajectory_modes, weather -> applearn_models (catalogue + model files), applearn_results
 """
 
+import os
 import time
 
 import dagster as dg
@@ -25,6 +26,7 @@ class AppLearnConfig(dg.Config):
     partitions: list[str] | None = Field(default=None, description="Table 6.1 partitions [P1-P4]")
     min_flights: int | None = Field(default=None, description="datasets = whole-flight clusters with at least this many flights [demo 25, paper 20]")
     episodes: int | None = Field(default=None, description="DQN training episodes [demo 768, paper 15000]")
+    workers: int | None = Field(default=None, description="runs in parallel, one process (one core) each [None: the usable cores]")
 
 
 @dg.multi_asset(
@@ -39,7 +41,8 @@ def applearn_experiments(context: dg.AssetExecutionContext, config: AppLearnConf
     import torch
 
     from models.trajectory.applearn import demo_or_paper
-    from models.trajectory.applearn_eval import datasets, run_partition, table_6_1
+    from models.parallel import ProcessPool
+    from models.trajectory.applearn_eval import datasets, run_partition_job, table_6_1
     from models.markdown import markdown_table
     from warehouse.artifacts import artifact_path, write_bytes_atomic
 
@@ -52,14 +55,16 @@ def applearn_experiments(context: dg.AssetExecutionContext, config: AppLearnConf
     todo = [(d, p, s) for d in sets for p in protocol["partitions"] for s in protocol["seeds"]]
     context.log.info(f"{len(todo)} runs: datasets {list(sets)}, {protocol}, {params.episodes} episodes each")
     models, results, t0 = [], [], time.perf_counter()
-    for k, (name, partition, seed) in enumerate(todo, 1):
-        model, row, res = run_partition(sets[name], weather, partition, seed, params)
-        path = write_bytes_atomic(artifact_path("models/applearn", f"{name.replace('/', '_mode')}_{partition}_seed{seed}.pt"), model.to_bytes())
-        models.append({"dataset": name, **row, "profile": config.profile, "path": str(path)})
-        results += [{"dataset": name, **r} for r in res]
-        a, b = res
-        context.log.info(f"[{k}/{len(todo)}] {name} {partition} seed {seed}: {row['train_s']:.0f} s; success AppLearn "
-                         f"{a['success_rate']:.2f} / SVM {b['success_rate']:.2f}, RMSE {a['rmse_3d_km']:.1f} / {b['rmse_3d_km']:.1f} km")
+    jobs = [(sets[name], weather, partition, seed, params) for name, partition, seed in todo]
+    # each run trains on one thread: the runs share the cores as parallel processes
+    with ProcessPool(config.workers or len(os.sched_getaffinity(0)), run_partition_job) as pool:
+        for k, ((name, partition, seed), (model_bytes, row, res)) in enumerate(zip(todo, pool.iter(jobs)), 1):
+            path = write_bytes_atomic(artifact_path("models/applearn", f"{name.replace('/', '_mode')}_{partition}_seed{seed}.pt"), model_bytes)
+            models.append({"dataset": name, **row, "profile": config.profile, "path": str(path)})
+            results += [{"dataset": name, **r} for r in res]
+            a, b = res
+            context.log.info(f"[{k}/{len(todo)}] {name} {partition} seed {seed}: {row['train_s']:.0f} s; success AppLearn "
+                             f"{a['success_rate']:.2f} / SVM {b['success_rate']:.2f}, RMSE {a['rmse_3d_km']:.1f} / {b['rmse_3d_km']:.1f} km")
     results = pl.DataFrame(results)
     meta = {"runs": len(todo), "seconds": round(time.perf_counter() - t0, 1), "profile": config.profile,
             "table_6_1": dg.MetadataValue.md(markdown_table(table_6_1(results)))}

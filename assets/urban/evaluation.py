@@ -22,10 +22,10 @@ class EvaluationConfig(dg.Config):
 
 
 def _run(context, jobs, workers):
-    from models.urban.parallel import EpisodePool
+    from models.parallel import ProcessPool
 
     t = time.perf_counter()
-    with EpisodePool(workers, run_job) as pool:
+    with ProcessPool(workers, run_job) as pool:
         outputs = pool([j for _, j in jobs])
     context.log.info(f"{len(jobs)} episodes in {time.perf_counter() - t:.1f} s")
     return [k for k, _ in jobs], outputs

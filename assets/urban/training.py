@@ -49,7 +49,7 @@ def urban_training(context: dg.AssetExecutionContext, config: TrainingConfig, ur
 
     from models.urban import col_marl
     from models.urban.experiments import METHODS_RL, files_of, route_agents
-    from models.urban.parallel import EpisodePool
+    from models.parallel import ProcessPool
 
     torch.set_num_threads(1)
     prof = PROFILE[config.profile]
@@ -57,7 +57,7 @@ def urban_training(context: dg.AssetExecutionContext, config: TrainingConfig, ur
     only_on = config.method_scenarios if config.method_scenarios is not None else prof["method_scenarios"]
     train = urban_scenarios.filter(pl.col("role") == "train")
     frames, timings, learner_cpu = [], {}, {}  # learner CPU: this process (gradient steps), whatever the machine's load
-    with EpisodePool(config.workers or default_workers(), col_marl.run_episode) as pool:
+    with ProcessPool(config.workers or default_workers(), col_marl.run_episode) as pool:
         for (scenario,), g in train.group_by("scenario", maintain_order=True):
             copies = [(files_of(r), r["n_vehicles"]) for r in g.iter_rows(named=True)]
             agents = route_agents(urban_routes, g["network"][0])

@@ -9,10 +9,21 @@ Algorithm 7 and the saved model, in that order. The equations, as in §6.4:
     μ(π)         = E[Σ_t γᵗ φ(s_t)]          (μ(π_E): mean over the expert flights)                    (6.6, 6.7)
     w            = argmax_{w,t} t  s.t. wᵀμ(π_E) ≥ wᵀμ(π_j) + t for every policy j so far, ‖w‖₂ ≤ 1
                    (the max-margin QP of Abbeel & Ng 2004; a second-order cone program, solved by CLARABEL)
-    DQN          : L(θ) = E[(r + γ (1 - done) max_a' Q_θ⁻(s', a') - Q_θ(s, a))²],   r = c · (R_w(s') + r_aug(s'))
+    DQN          : L(θ) = E[(Σ_{j<n} γʲ r_{t+j} + γⁿ (1 - done) max_a' Q_θ⁻(s_{t+n}, a') - Q_θ(s_t, a_t))²]   (n-step)
+                   r = c · (R_w(s') + r_aug(s') + γ Φ(s') - Φ(s))
 
 r_aug is the reward augmentation of §6.5.2: a large bonus on reaching the destination, a large penalty on
 leaving the box or hitting the step limit. The environment is models.trajectory.heading_env (Eq 6.4).
+
+Additions beyond the thesis, each with a switch among the hyperparameters (docs/applearn.md says why and
+what each measured): φ gets a route feature φ_route(s) = exp(-d²/2σ²), d the distance to the experts'
+centroid route and σ the experts' RMS distance to it (Eq 6.2's centres lie ~50-100 km apart along the route
+with RBF widths to match, so φ_pos cannot tell a point 20 km off the route from one on it); potential-based
+shaping (Ng et al. 1999) with Φ(s) = -(distance to the goal along the route) / step, which leaves the
+optimal policy unchanged and pays every step's progress at once; n-step returns; a step reward ≤ 0; the wider
+fan of headings (heading_env.fit_geometry); the IRL step's policy with the best greedy success on the training
+flights is returned; and, in training only, an episode fails as soon as it leaves a corridor around the route
+or passes the goal.
 
 Choices the thesis leaves open or that deviate from it are commented at their parameters (gamma,
 failure_reward, reward_scale, feature_gamma, start_anywhere_fraction). The main deviation, on by default
@@ -30,6 +41,7 @@ import polars as pl
 import torch
 
 from models.trajectory.heading_env import (
+    OUT_OF_BOX,
     RUNNING,
     SUCCESS,
     WEATHER_COLUMNS,
@@ -53,6 +65,7 @@ class AppLearnParams:
     n_pos_centres: int = 20  # L_pos
     n_meteo_centres: int = 20  # L_meteo
     n_headings: int = 4  # L_a, the discrete actions
+    heading_coverage: float = 0.95  # the headings' fan spans this central share of the expert step directions
     goal_radius_km: float = 5.0  # success: within this distance of the destination
     max_steps: int = 2000  # failure: step limit
     altitude_hidden: int = 50  # NN_altitude: one hidden layer of 50 ReLU
@@ -93,10 +106,26 @@ class AppLearnParams:
     # rest at an expert's first point. Mid-route starts reach the goal early in training, so the success
     # bonus is seen at all. μ(π) comes from greedy roll-outs from the first points (policy_feature_expectations).
     start_anywhere_fraction: float = 0.5
+    # --- additions beyond the thesis (module docstring); the neutral value switches each off
+    route_feature: bool = True  # φ_route in φ (reward and IRL)
+    # the DQN's step reward is wᵀφ(s') - Σ_k max(w_k, 0) ≤ 0 (φ_k ∈ [0, 1]): with a step reward that can be
+    # positive, flying on near the route forever (r/(1-γ) = 200 r) beats the success bonus of 100, and the
+    # greedy policy flew to the step limit. A constant per step; the IRL step (the QP on μ) is unchanged.
+    nonpositive_reward: bool = True
+    route_input: bool = True  # the Q-net also sees the signed offset from the route (tanh at 2σ) and the share of it left
+    shaping: float = 1.0  # weight of the potential Φ (per step of route left); 0 = no shaping
+    n_step: int = 10  # n of the n-step return; 1 = the one-step target of the thesis's DQN
+    corridor_widths: float = 4.0  # training only: failure beyond this many σ from the route or past the goal; 0 = off
+    # return the policy of the IRL step whose greedy roll-outs from the experts' first points (training flights)
+    # succeeded most, ties to the latest (Abbeel & Ng also return one of the iterations' policies, not
+    # necessarily the last); False = the last one. Greedy success moves between IRL steps (e.g. 1, 1, 0, 1).
+    select_policy: bool = True
 
 
 # goal offset (in steps) seen by the DQN through tanh(offset / scale): fine near the goal, coarse far away
 GOAL_OFFSET_SCALES_STEPS = (10.0, 100.0)
+KM_PER_DEG = 111.2  # km per degree of latitude (and of scaled longitude, lon · cos(lat0))
+ROUTE_POINTS = 100  # vertices of the centroid route polyline
 
 PROFILES = {
     "paper": AppLearnParams(),
@@ -120,13 +149,14 @@ class RBFFeatures:
     meteo_mean: np.ndarray  # (3,) mean and std of T [K], u, v [m/s] over the expert points
     meteo_std: np.ndarray
     beta_meteo: float
+    route: "Route | None" = None  # φ_route when set
 
     @property
     def size(self) -> int:
-        return len(self.pos_centres) + len(self.meteo_centres) + 1
+        return len(self.pos_centres) + len(self.meteo_centres) + 1 + (self.route is not None)
 
-    def __call__(self, obs: np.ndarray) -> np.ndarray:
-        """φ(s) for observations (N, 7) -> (N, L_pos + L_meteo + 1); a point without weather gets φ_meteo = 0.
+    def __call__(self, obs: np.ndarray, route_offset_km: np.ndarray | None = None) -> np.ndarray:
+        """φ(s) for observations (N, 7) -> (N, L_pos + L_meteo + 1 [+ 1: φ_route]); a point without weather gets φ_meteo = 0.
 
         The last feature is a constant 1: its feature expectation is the episode length, so the QP can learn
         a cost per step (experts do not dawdle) instead of paying the agent for every step near the route.
@@ -135,8 +165,64 @@ class RBFFeatures:
         v = (obs[:, 4:7] - self.meteo_mean) / self.meteo_std
         phi_pos = np.exp(-self.beta_pos * ((p[:, None, :] - self.pos_centres) ** 2).sum(-1))
         phi_meteo = np.exp(-self.beta_meteo * ((v[:, None, :] - self.meteo_centres) ** 2).sum(-1))
-        bias = np.ones((len(obs), 1))
-        return np.nan_to_num(np.concatenate([phi_pos, phi_meteo, bias], axis=1)).astype(np.float32)
+        parts = [phi_pos, phi_meteo, np.ones((len(obs), 1))]
+        if self.route is not None:
+            offset = self.route.locate(obs)[0] if route_offset_km is None else route_offset_km
+            parts.append(np.exp(-0.5 * (offset / self.route.width_km) ** 2)[:, None])
+        return np.nan_to_num(np.concatenate(parts, axis=1)).astype(np.float32)
+
+
+@dataclass
+class Route:
+    """The experts' centroid route as a polyline in φ_pos's (lon·cos(lat0), lat) frame, ending at the goal."""
+
+    points: np.ndarray  # (ROUTE_POINTS, 2)
+    lon_scale: float
+    width_km: float  # σ: RMS distance of the expert points to the route, at least one step
+
+    def locate(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(signed offset from the route km, left of the route's line positive; route left to the goal km) per row.
+
+        The closest route point is sought on the two segments at the nearest vertex (one matrix product for
+        all rows; exact unless a far segment passes closer than both, which vertices ~15 km apart rule out
+        near the route). Every training step calls this for 256 trajectories."""
+        p = np.stack([obs[:, 0] * self.lon_scale, obs[:, 1]], axis=1)
+        pts, last = self.points, len(self.points) - 2  # last segment index
+        vertex = ((p**2).sum(1)[:, None] - 2 * p @ pts.T + (pts**2).sum(1)).argmin(axis=1)
+        seg = np.stack([(vertex - 1).clip(0, last), vertex.clip(0, last)], axis=1)  # (N, 2) candidate segments
+        a, ab = pts[seg], pts[seg + 1] - pts[seg]
+        rel = p[:, None, :] - a
+        t = ((rel * ab).sum(-1) / (ab**2).sum(-1).clip(1e-12)).clip(0, 1)
+        d2 = ((rel - t[..., None] * ab) ** 2).sum(-1)
+        rows = np.arange(len(p))
+        j = d2.argmin(axis=1)
+        k, ab, rel, t = seg[rows, j], ab[rows, j], rel[rows, j], t[rows, j]
+        side = np.sign(ab[:, 0] * rel[:, 1] - ab[:, 1] * rel[:, 0])
+        length = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+        after = np.concatenate([np.cumsum(length[::-1])[::-1][1:], [0.0]])  # route after each segment's end
+        return side * np.sqrt(d2[rows, j]) * KM_PER_DEG, (after[k] + (1 - t) * length[k]) * KM_PER_DEG
+
+    def beyond_goal_km(self, obs: np.ndarray) -> np.ndarray:
+        """How far past the goal each point lies along the route's last segment (negative: not yet there)."""
+        p = np.stack([obs[:, 0] * self.lon_scale, obs[:, 1]], axis=1)
+        last = self.points[-1] - self.points[-2]
+        return (p - self.points[-1]) @ (last / np.linalg.norm(last).clip(1e-12)) * KM_PER_DEG
+
+    @property
+    def length_km(self) -> float:
+        return float(np.linalg.norm(np.diff(self.points, axis=0), axis=1).sum() * KM_PER_DEG)
+
+
+def fit_route(tracks: pl.DataFrame, geometry: HeadingGeometry, lon_scale: float) -> Route:
+    """The time-normalised centroid of the expert flights, its last vertex moved to the goal; σ from the experts."""
+    _, lon_lat = resample_flights(tracks, ROUTE_POINTS)
+    points = lon_lat.mean(axis=0)
+    points[-1] = geometry.goal_lon, geometry.goal_lat
+    route = Route(points * np.array([lon_scale, 1.0]), lon_scale, 1.0)
+    offset, _ = route.locate(tracks.select("lon", "lat").to_numpy())
+    step_km = np.hypot(geometry.step_lon_deg * lon_scale, geometry.step_lat_deg) * KM_PER_DEG
+    route.width_km = float(max(np.sqrt(np.mean(offset**2)), step_km))
+    return route
 
 
 def fit_features(tracks: pl.DataFrame, n_pos: int, n_meteo: int, seed: int) -> RBFFeatures:
@@ -202,20 +288,41 @@ class AppLearnModel:
     w: np.ndarray
     # how reward_scale was chosen: validation flight ids and each candidate's score (empty: no choice was made)
     validation: dict = field(default_factory=dict)
+    route: Route | None = None  # the experts' centroid route (route_feature, route_input, shaping, corridor)
 
     def q_input(self, obs: np.ndarray) -> np.ndarray:
-        """The DQN's input: φ(s), and (goal_offset_input) the offset to the goal, in steps, squashed at two scales."""
-        phi = self.features(obs)
-        if not self.params.goal_offset_input:
-            return phi
-        g = self.geometry
-        steps = np.stack([(g.goal_lon - obs[:, 0]) / g.step_lon_deg, (g.goal_lat - obs[:, 1]) / g.step_lat_deg], axis=1)
-        offset = np.concatenate([np.tanh(steps / scale) for scale in GOAL_OFFSET_SCALES_STEPS], axis=1)
-        return np.concatenate([phi, offset.astype(np.float32)], axis=1)
+        """The DQN's input: φ(s), and (goal_offset_input) the offset to the goal, in steps, squashed at two scales,
+        and (route_input) the signed offset from the route (tanh at 2σ) and the share of the route left."""
+        return self.encode(obs)[0]
+
+    def encode(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(DQN input, shaping potential Φ, training failure) of each observation, locating it on the route once.
+
+        Φ(s) = -shaping · (|offset| + route left) / step: minus the distance to the goal along the route, in steps.
+        Training failure (corridor_widths): farther than corridor_widths · σ from the route, or past the goal."""
+        p, g, n = self.params, self.geometry, len(obs)
+        offset, left = self.route.locate(obs) if self.route is not None else (None, None)
+        parts = [self.features(obs, offset)]
+        if p.goal_offset_input:
+            steps = np.stack([(g.goal_lon - obs[:, 0]) / g.step_lon_deg, (g.goal_lat - obs[:, 1]) / g.step_lat_deg], axis=1)
+            parts += [np.tanh(steps / scale) for scale in GOAL_OFFSET_SCALES_STEPS]
+        if p.route_input:
+            parts.append(np.stack([np.tanh(offset / (2 * self.route.width_km)), left / self.route.length_km], axis=1))
+        x = np.concatenate(parts, axis=1).astype(np.float32)
+        if not (p.shaping or p.corridor_widths):
+            return x, np.zeros(n, np.float32), np.zeros(n, bool)
+        step_km = np.hypot(g.step_lon_deg * self.route.lon_scale, g.step_lat_deg) * KM_PER_DEG
+        potential = (-p.shaping * (np.abs(offset) + left) / step_km).astype(np.float32)
+        failed = np.zeros(n, bool)
+        if p.corridor_widths:
+            # past the goal: the route's end is the nearest route point, and the point lies beyond it
+            failed = (np.abs(offset) > p.corridor_widths * self.route.width_km) | (
+                (left <= 0) & (self.route.beyond_goal_km(obs) > g.goal_radius_km))
+        return x, potential, failed
 
     @property
     def n_inputs(self) -> int:
-        return self.features.size + 2 * len(GOAL_OFFSET_SCALES_STEPS) * self.params.goal_offset_input
+        return self.features.size + 2 * len(GOAL_OFFSET_SCALES_STEPS) * self.params.goal_offset_input + 2 * self.params.route_input
 
     @torch.no_grad()
     def policy(self, obs: np.ndarray) -> np.ndarray:
@@ -227,22 +334,29 @@ class AppLearnModel:
 
     def to_bytes(self) -> bytes:
         buffer = io.BytesIO()
+        features = {k: torch.as_tensor(v) for k, v in asdict(replace(self.features, route=None)).items() if k != "route"}
+        route = {k: torch.as_tensor(v) for k, v in asdict(self.route).items()} if self.route is not None else None
         torch.save({
             "kind": "applearn", "params": asdict(self.params), "geometry": self.geometry.to_dict(),
             "altitude": self.altitude.state_dict(), "q_net": self.q_net.state_dict(), "w": torch.from_numpy(self.w),
-            "features": {k: torch.as_tensor(v) for k, v in asdict(self.features).items()}, "validation": self.validation,
+            "features": features, "route": route, "validation": self.validation,
         }, buffer)
         return buffer.getvalue()
 
     @classmethod
     def load(cls, path: str | Path) -> "AppLearnModel":
         state = _load_state(Path(path), "applearn")
-        params = AppLearnParams(**state["params"])
+        try:
+            params = AppLearnParams(**state["params"])
+            unpack = lambda d: {k: v.item() if v.ndim == 0 else v.numpy() for k, v in d.items()}  # noqa: E731
+            route = Route(**unpack(state["route"])) if state.get("route") is not None else None
+            features = RBFFeatures(**unpack(state["features"]), route=route if params.route_feature else None)
+        except (KeyError, TypeError) as e:  # a file of an older or newer AppLearn
+            raise ModelFileError(f"{path}: an AppLearn model file of another version ({type(e).__name__}: {e})") from None
         geometry = HeadingGeometry(**state["geometry"])
         altitude = AltitudeNet(params.altitude_hidden)
         altitude.load_state_dict(state["altitude"])
-        features = RBFFeatures(**{k: v.item() if v.ndim == 0 else v.numpy() for k, v in state["features"].items()})
-        model = cls(params, geometry, altitude.eval(), features, None, state["w"].numpy(), state.get("validation", {}))
+        model = cls(params, geometry, altitude.eval(), features, None, state["w"].numpy(), state.get("validation", {}), route)
         model.q_net = QNetwork(model.n_inputs, len(geometry.headings_rad), params.hidden)
         model.q_net.load_state_dict(state["q_net"])
         model.q_net.eval()
@@ -272,13 +386,16 @@ def train_applearn(
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
     # Alg 7, line 1: NN_altitude; and the MDP, features and expert feature expectations from the experts
-    geometry = fit_geometry(tracks, params.n_headings, params.goal_radius_km, params.max_steps)
+    geometry = fit_geometry(tracks, params.n_headings, params.goal_radius_km, params.max_steps, heading_coverage=params.heading_coverage)
     altitude = fit_altitude_net(tracks, params.altitude_hidden, params.altitude_epochs, seed=seed)
     features = fit_features(tracks, params.n_pos_centres, params.n_meteo_centres, seed)
+    route = fit_route(tracks, geometry, features.lon_scale)
+    if params.route_feature:
+        features.route = route
     mu_expert = expert_feature_expectations(tracks, features, params.feature_gamma)
     w0 = rng.normal(size=features.size)  # Alg 7, line 2: random initial reward weights
     n_actions = len(geometry.headings_rad)
-    model = AppLearnModel(params, geometry, altitude, features, None, w0 / np.linalg.norm(w0))
+    model = AppLearnModel(params, geometry, altitude, features, None, w0 / np.linalg.norm(w0), route=route)
     model.q_net = q_net = QNetwork(model.n_inputs, n_actions, params.hidden)
     target_net = QNetwork(model.n_inputs, n_actions, params.hidden)
     target_net.load_state_dict(q_net.state_dict())
@@ -292,18 +409,12 @@ def train_applearn(
         chosen = StartStates.concat([firsts.take(rng.integers(0, len(firsts), n)), anywhere.take(rng.integers(0, len(anywhere), n))])
         return chosen.take(np.where(mid, n + np.arange(n), np.arange(n)))
 
-    # replay memory: DQN input of s and s', action, status of s' (the reward is recomputed with the current w)
-    n_in = model.n_inputs
-    memory_x = np.zeros((params.buffer_size, n_in), np.float32)
-    memory_x2 = np.zeros((params.buffer_size, n_in), np.float32)
-    memory_a = np.zeros(params.buffer_size, np.int64)
-    memory_status = np.zeros(params.buffer_size, np.int8)
-    stored = 0
-
+    memory = Replay(params.buffer_size, model.n_inputs, params.n_envs)
     obs = env.reset(pick_starts(params.n_envs))
-    x = model.q_input(obs)
+    x, potential, _ = model.encode(obs)
     greedy_env = model.env(weather)  # μ(π) of the current greedy policy is measured in an environment of its own
     finished_success, losses, mu_policies, history = [], [], [], []
+    best = None  # (selection key, Q-net parameters, IRL step) of the best IRL step's policy so far
     episodes = updates = 0
     next_target, next_irl = params.target_every_episodes, params.irl_every_episodes
     explore_episodes = params.exploration_fraction * params.episodes
@@ -315,32 +426,32 @@ def train_applearn(
             greedy = q_net(torch.from_numpy(x)).argmax(dim=1).numpy()
         actions = np.where(rng.random(params.n_envs) < epsilon, rng.integers(0, n_actions, params.n_envs), greedy)
         obs, status = env.step(actions)  # Eq 6.4 + NN_altitude + weather at the new 4D point
-        x2 = model.q_input(obs)
-
-        rows = (stored + np.arange(params.n_envs)) % params.buffer_size
-        memory_x[rows], memory_x2[rows], memory_a[rows], memory_status[rows] = x, x2, actions, status
-        stored += params.n_envs
+        x2, potential2, failed = model.encode(obs)
+        status[(status == RUNNING) & failed] = OUT_OF_BOX  # training only: left the corridor or passed the goal
+        memory.add(x, x2, actions, status, potential, potential2)
 
         ended = np.flatnonzero(status != RUNNING)
         if len(ended):
             finished_success.extend(status[ended] == SUCCESS)
             episodes += len(ended)
             obs = env.restart(ended, pick_starts(len(ended)))
-            x2[ended] = model.q_input(obs[ended])
-        x = x2
+            x2[ended], potential2[ended], _ = model.encode(obs[ended])
+        x, potential = x2, potential2
 
         # DQN updates: one per transitions_per_update environment steps
         if episodes > explore_episodes:  # exploitation: the learning rate decays linearly to lr_final
             progress = (episodes - explore_episodes) / max(params.episodes - explore_episodes, 1)
             optimiser.param_groups[0]["lr"] = params.lr + min(progress, 1.0) * (params.lr_final - params.lr)
-        while updates < stored // params.transitions_per_update:
-            losses.append(_dqn_update(model, target_net, optimiser, rng, memory_x, memory_x2, memory_a, memory_status, min(stored, params.buffer_size)))
+        while updates < memory.stored // params.transitions_per_update and memory.can_sample(params.n_step):
+            losses.append(_dqn_update(model, target_net, optimiser, memory, memory.sample(rng, params.batch_size, params.n_step)))
             updates += 1
         if episodes >= next_target:
             target_net.load_state_dict(q_net.state_dict())
             next_target = (episodes // params.target_every_episodes + 1) * params.target_every_episodes
         if episodes >= next_irl:  # the IRL step: μ of the current policy joins the QP, a new w comes out
             mu_policy, greedy_success = policy_feature_expectations(model, greedy_env, firsts, params.feature_gamma)
+            if best is None or greedy_success >= best[0] or not params.select_policy:
+                best = (greedy_success, {k: v.clone() for k, v in q_net.state_dict().items()}, len(history))
             mu_policies.append(mu_policy)
             model.w, margin = max_margin_weights(mu_expert, np.stack(mu_policies))
             history.append({
@@ -355,7 +466,9 @@ def train_applearn(
                     f"margin={margin:.3f} loss={history[-1]['loss']:.3g}")
             finished_success, losses = [], []
             next_irl = (episodes // params.irl_every_episodes + 1) * params.irl_every_episodes
-    return model, pl.DataFrame(history)
+    if best is not None:
+        q_net.load_state_dict(best[1])
+    return model, pl.DataFrame(history).with_columns(selected=pl.int_range(pl.len()) == (best[2] if best else -1))
 
 
 def policy_feature_expectations(model: AppLearnModel, env: HeadingEnv, starts: StartStates, gamma: float) -> tuple[np.ndarray, float]:
@@ -374,18 +487,53 @@ def policy_feature_expectations(model: AppLearnModel, env: HeadingEnv, starts: S
     return mu.mean(axis=0), float((env.status == SUCCESS).mean())
 
 
-def _dqn_update(model, target_net, optimiser, rng, memory_x, memory_x2, memory_a, memory_status, size) -> float:
-    """One Adam step on the TD error of a random mini-batch; r = wᵀφ(s') + reward augmentation."""
+class Replay:
+    """Replay memory filled n_envs transitions at a time, so that row i + n_envs is the next transition of row i's
+    environment slot (after a finished episode: the next episode's first). That gives n-step windows by indexing.
+    Stored: DQN input of s and s', action, status of s', Φ(s), Φ(s'); the reward is recomputed with the current w."""
+
+    def __init__(self, size: int, n_inputs: int, n_envs: int):
+        self.size, self.n_envs, self.stored = size, n_envs, 0
+        self.x, self.x2 = np.zeros((size, n_inputs), np.float32), np.zeros((size, n_inputs), np.float32)
+        self.a, self.status = np.zeros(size, np.int64), np.zeros(size, np.int8)
+        self.potential, self.potential2 = np.zeros(size, np.float32), np.zeros(size, np.float32)
+
+    def add(self, x, x2, a, status, potential, potential2) -> None:
+        rows = (self.stored + np.arange(self.n_envs)) % self.size
+        self.x[rows], self.x2[rows], self.a[rows], self.status[rows] = x, x2, a, status
+        self.potential[rows], self.potential2[rows] = potential, potential2
+        self.stored += self.n_envs
+
+    def can_sample(self, n_step: int) -> bool:
+        return self.stored > (n_step - 1) * self.n_envs
+
+    def sample(self, rng, batch: int, n_step: int) -> np.ndarray:
+        """(batch, n_step) rows: n consecutive transitions of one slot, the first drawn from what is stored."""
+        first = rng.integers(max(0, self.stored - self.size), self.stored - (n_step - 1) * self.n_envs, batch)
+        return (first[:, None] + self.n_envs * np.arange(n_step)) % self.size
+
+
+def n_step_returns(reward: np.ndarray, status: np.ndarray, gamma: float) -> tuple[np.ndarray, np.ndarray]:
+    """Σ_j γʲ r_j over windows (batch, n) of one slot's consecutive transitions, each reward counted only while its
+    episode still ran before it; and whether to bootstrap from the window's last s' (no step of it ended the episode)."""
+    running = status == RUNNING
+    alive = np.concatenate([np.ones((len(reward), 1), bool), np.cumprod(running, axis=1)[:, :-1].astype(bool)], axis=1)
+    return (reward * alive * gamma ** np.arange(reward.shape[1])).sum(axis=1), running.all(axis=1)
+
+
+def _dqn_update(model: AppLearnModel, target_net: QNetwork, optimiser, memory: Replay, rows: np.ndarray) -> float:
+    """One Adam step on the n-step TD error of the windows `rows` (batch, n) of the replay memory;
+    r_j = c · (wᵀφ(s'_j) + reward augmentation + γΦ(s'_j) - Φ(s_j))."""
     p = model.params
-    idx = rng.integers(0, size, min(p.batch_size, size))
-    x, x2 = torch.from_numpy(memory_x[idx]), torch.from_numpy(memory_x2[idx])
-    status = memory_status[idx]
-    reward = memory_x2[idx, : model.features.size] @ model.w.astype(np.float32)
-    reward = p.reward_scale * (reward + np.where(status == SUCCESS, p.success_reward, np.where(status != RUNNING, p.failure_reward, 0.0)))
+    status = memory.status[rows]
+    reward = memory.x2[rows, : model.features.size] @ model.w.astype(np.float32) - p.nonpositive_reward * model.w.clip(min=0).sum()
+    reward += np.where(status == SUCCESS, p.success_reward, np.where(status != RUNNING, p.failure_reward, 0.0))
+    reward += p.gamma * memory.potential2[rows] - memory.potential[rows]
+    returns, bootstrap = n_step_returns(p.reward_scale * reward, status, p.gamma)
     with torch.no_grad():
-        running = torch.from_numpy(status == RUNNING).float()
-        target = torch.from_numpy(reward.astype(np.float32)) + p.gamma * running * target_net(x2).max(dim=1).values
-    q = model.q_net(x).gather(1, torch.from_numpy(memory_a[idx])[:, None]).squeeze(1)
+        q_next = target_net(torch.from_numpy(memory.x2[rows[:, -1]])).max(dim=1).values
+        target = torch.from_numpy(returns.astype(np.float32)) + p.gamma ** rows.shape[1] * torch.from_numpy(bootstrap.astype(np.float32)) * q_next
+    q = model.q_net(torch.from_numpy(memory.x[rows[:, 0]])).gather(1, torch.from_numpy(memory.a[rows[:, 0]])[:, None]).squeeze(1)
     loss = torch.nn.functional.mse_loss(q, target)
     optimiser.zero_grad()
     loss.backward()

@@ -102,6 +102,13 @@ def run_partition(tracks: pl.DataFrame, weather: pl.DataFrame, partition: str, s
     return model, row, results
 
 
+def run_partition_job(job: tuple) -> tuple[bytes, dict, list[dict]]:
+    """`run_partition(tracks, weather, partition, seed, params)` for a worker process: the model comes back as
+    its file's bytes. Every run seeds its own randomness, so the result does not depend on where it ran."""
+    model, row, results = run_partition(*job)
+    return model.to_bytes(), row, results
+
+
 def table_6_1(results: pl.DataFrame) -> pl.DataFrame:
     """Table 6.1 for our data: success rate (%) and RMSE (km) of both methods, mean ± std over seeds."""
     agg = results.group_by("dataset", "partition", "method").agg(

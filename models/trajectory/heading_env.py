@@ -57,7 +57,7 @@ class HeadingGeometry:
 
 def fit_geometry(
     tracks: pl.DataFrame, n_headings: int = 4, goal_radius_km: float = 5.0, max_steps: int = 2000,
-    bbox_margin_deg: float = 1.0,
+    bbox_margin_deg: float = 1.0, heading_coverage: float = 0.95,
 ) -> HeadingGeometry:
     """Headings (from the directions of the expert steps), step sizes, goal and bounding box.
 
@@ -69,13 +69,16 @@ def fit_geometry(
         dt=pl.col("ts").diff().over("flight_id").dt.total_seconds(),
     ).drop_nulls()
     step_lon, step_lat = float(steps["dlon"].abs().mean()), float(steps["dlat"].abs().mean())
-    # Direction of every expert step in the scaled frame. The L_a headings are the (k + ½)/L_a quantiles of
-    # the steps' deviation from their mean direction: a fan covering the experts' central directions, so
-    # that the agent can steer left and right of the route and even a random policy progresses along it.
+    # Direction of every expert step in the scaled frame. The L_a headings are evenly spaced quantiles of the
+    # steps' deviation from their mean direction, the outer two bounding the central `heading_coverage` share:
+    # a fan over the experts' directions, so that the agent can steer left and right of the route and even a
+    # random policy progresses along it. A route that turns needs the tails: with the central 75 % ((k + ½)/4,
+    # the earlier rule), UUEE-UMKK mode 0's final leg (SSE, steps at -74° median) had no heading east of
+    # south, and following the route could not reach the goal.
     ang = np.arctan2(steps["dlat"].to_numpy() / step_lat, steps["dlon"].to_numpy() / step_lon)
     mean = np.arctan2(np.sin(ang).mean(), np.cos(ang).mean())
     deviation = np.angle(np.exp(1j * (ang - mean)))  # wrapped to (-π, π]
-    headings = mean + np.quantile(deviation, (np.arange(n_headings) + 0.5) / n_headings)
+    headings = mean + np.quantile(deviation, np.linspace(0.5 - heading_coverage / 2, 0.5 + heading_coverage / 2, n_headings))
     ends = tracks.group_by("flight_id").agg(pl.col("lon").last(), pl.col("lat").last())
     goal_lon, goal_lat = float(ends["lon"].median()), float(ends["lat"].median())
     bbox = (

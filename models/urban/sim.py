@@ -1,7 +1,7 @@
 """One libsumo simulation of a scenario copy, shared by the RL environment and the SUMO baselines.
 
 libsumo runs one simulation per process (a second `start` silently replaces the first): parallel
-episodes need processes (see models.urban.parallel). Facts measured on libsumo 1.28 that shape this file:
+episodes need processes (see models.parallel). Facts measured on libsumo 1.28 that shape this file:
 - crossing collisions tunnel through each other at a 1 s step: we simulate at `step_s` = 0.2 s and the
   agents act every `action_s` = 1 s; junction collisions are checked (`--collision.check-junctions`);
 - `--collision.action remove` takes both vehicles out (they then also show up in the arrived list, so

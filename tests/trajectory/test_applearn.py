@@ -5,8 +5,18 @@ import polars as pl
 import pytest
 import torch
 
-from models.trajectory.applearn import AppLearnModel, demo_or_paper, max_margin_weights, train_applearn
-from models.trajectory.applearn_eval import datasets, run_partition, table_6_1
+from models.trajectory.applearn import (
+    KM_PER_DEG,
+    AppLearnModel,
+    Replay,
+    Route,
+    demo_or_paper,
+    max_margin_weights,
+    n_step_returns,
+    train_applearn,
+)
+from models.parallel import ProcessPool
+from models.trajectory.applearn_eval import datasets, run_partition, run_partition_job, table_6_1
 from models.trajectory.heading_env import (
     OUT_OF_BOX,
     SUCCESS,
@@ -77,6 +87,45 @@ def test_heading_env_moves_by_eq_6_4_and_terminates(cluster):
     assert status.tolist() == [SUCCESS, OUT_OF_BOX]
 
 
+def test_route_offset_route_left_and_training_failures(trained):
+    # a straight route due east along 55° N: left of it (north) is a positive offset
+    lon_scale = np.cos(np.radians(55.0))
+    route = Route(np.stack([np.linspace(20, 21, 11) * lon_scale, np.full(11, 55.0)], axis=1), lon_scale, 5.0)
+    obs = np.zeros((4, 7))
+    obs[:, :2] = [[20.5, 55.1], [20.5, 54.9], [20.25, 55.0], [21.1, 55.0]]
+    offset, left = route.locate(obs)
+    assert offset[:3] == pytest.approx([0.1 * KM_PER_DEG, -0.1 * KM_PER_DEG, 0.0], abs=1e-6)
+    assert left[:3] == pytest.approx(np.array([0.5, 0.5, 0.75]) * lon_scale * KM_PER_DEG)
+    assert route.beyond_goal_km(obs)[3] == pytest.approx(0.1 * lon_scale * KM_PER_DEG)
+    # the fitted route: Φ rises towards the goal along it; off the corridor or past the goal is a training failure
+    model, _ = trained
+    r = model.route
+    on = np.zeros((len(r.points), 7))
+    on[:, :2] = r.points / np.array([r.lon_scale, 1.0])
+    _, potential, failed = model.encode(on)
+    assert (np.diff(potential) > 0).all() and not failed.any()
+    far = on.copy()
+    far[:, 1] += 10.0  # north of any route of the bundled data
+    last = (r.points[-1] - r.points[-2]) / np.linalg.norm(r.points[-1] - r.points[-2])
+    past = on[-1:].copy()
+    past[0, :2] += 2 * model.geometry.goal_radius_km / KM_PER_DEG * last / np.array([r.lon_scale, 1.0])
+    assert model.encode(far)[2].all() and model.encode(past)[2].all()
+    assert model.features(on)[:, -1] == pytest.approx(1.0, abs=1e-3)  # φ_route is 1 on the route
+
+
+def test_n_step_windows_stop_at_episode_ends():
+    g = 0.5
+    returns, bootstrap = n_step_returns(np.ones((3, 3)), np.array([[0, 1, 0], [0, 0, 0], [2, 0, 0]]), g)
+    assert returns == pytest.approx([1 + g, 1 + g + g**2, 1]) and bootstrap.tolist() == [False, True, False]
+    memory = Replay(size=12, n_inputs=1, n_envs=2)  # two slots; row i + 2 is the next transition of row i's slot
+    for t in range(5):
+        memory.add(np.array([[10.0 * t], [10.0 * t + 1]]), np.zeros((2, 1)), np.zeros(2), np.zeros(2), np.zeros(2), np.zeros(2))
+    rows = memory.sample(np.random.default_rng(0), 200, n_step=3)
+    x = memory.x[rows, 0]
+    assert (np.diff(x, axis=1) == 10).all()  # consecutive steps of one slot
+    assert x.max() <= 41 and memory.can_sample(3) and not Replay(12, 1, 2).can_sample(2)
+
+
 def test_svm_labels_are_the_closest_heading(cluster):
     train, _, _ = cluster
     g = fit_geometry(train)
@@ -98,6 +147,9 @@ def test_learned_policies_beat_random_and_irl_margin_never_grows(cluster, traine
     assert (np.diff(margin) <= 1e-6).all()  # a new policy only adds a QP constraint
     # μ(π) of the greedy policy moves the QP (from the ε-greedy episodes, the margin stayed at its first value)
     assert margin[-1] < margin[0]
+    # the returned policy is the IRL step's with the best greedy success from the experts' first points
+    chosen = history.filter("selected")
+    assert chosen.height == 1 and chosen["greedy_success_rate"][0] == history["greedy_success_rate"].max()
     assert np.linalg.norm(model.w) <= 1 + 1e-6
     env = model.env(weather)
     rng = np.random.default_rng(0)
@@ -106,8 +158,15 @@ def test_learned_policies_beat_random_and_irl_margin_never_grows(cluster, traine
     svm = train_svm_bc(train, model.geometry, model.altitude, seed=0)
     cloned, _ = evaluate_policy(env, svm.policy, test)
     # seconds of DQN training do not reach the goal yet (the demo's budget does), but already fly closer to
-    # the experts than random headings; before the reward scaling, this budget flew twice as far off as random
-    assert learned["rmse_3d_nm"].mean() < rnd["rmse_3d_nm"].mean()
+    # the experts than random headings and than the SVM, which the wide fan of headings (heading_coverage
+    # 0.95) leaves worse than random here (probably: its labels alternate between neighbouring headings
+    # where the experts fly between them)
+    assert learned["rmse_3d_nm"].mean() < min(rnd["rmse_3d_nm"].mean(), cloned["rmse_3d_nm"].mean())
+    # the SVM itself imitates: in the central fan (0.75, the earlier headings) at less than half random's RMSE
+    g = fit_geometry(train, heading_coverage=0.75)
+    env = HeadingEnv(g, model.altitude, weather)
+    rnd, _ = evaluate_policy(env, lambda obs: rng.integers(0, env.n_actions, len(obs)), test)
+    cloned, _ = evaluate_policy(env, train_svm_bc(train, g, model.altitude, seed=0).policy, test)
     assert cloned["rmse_3d_nm"].mean() < 0.5 * rnd["rmse_3d_nm"].mean()
 
 
@@ -122,13 +181,17 @@ def test_saved_model_reloads_and_acts_identically(cluster, trained, tmp_path):
     assert np.array_equal(model.w, again.w) and again.params == model.params
 
 
-def test_same_seed_same_numbers_and_reward_scale_chosen_without_test_flights(cluster):
+def test_same_seed_same_numbers_and_reward_scale_chosen_without_test_flights(cluster, tmp_path):
     train, test, weather = cluster
     # the paper profile's choice between scales (the demo profile fixes one), at a tiny budget
     params = demo_or_paper("demo", **{**TINY, "episodes": 48, "reward_scales": (0.1, 0.01)})
     tracks = pl.concat([train, test])
-    runs = [run_partition(tracks, weather, "P3", 1, params) for _ in range(2)]
-    (model_a, row_a, res_a), (model_b, row_b, res_b) = runs
+    model_a, row_a, res_a = run_partition(tracks, weather, "P3", 1, params)
+    # again in a worker process, as the asset runs it (beside another run): the same numbers
+    with ProcessPool(2, run_partition_job) as pool:
+        (blob, row_b, res_b), _ = pool([(tracks, weather, "P3", 1, params), (tracks, weather, "P3", 2, params)])
+    (tmp_path / "b.pt").write_bytes(blob)
+    model_b = AppLearnModel.load(tmp_path / "b.pt")
     assert res_a == res_b and model_a.validation == model_b.validation
     assert {k: v for k, v in row_a.items() if k != "train_s"} == {k: v for k, v in row_b.items() if k != "train_s"}
     # the reward scale is chosen on validation flights carved from this draw's training flights, never a test flight
@@ -155,6 +218,9 @@ def test_bad_inputs_give_one_line_errors(cluster, tmp_path):
     torch.save({"kind": "other"}, tmp_path / "other.pt")
     with pytest.raises(ModelFileError, match="expected a applearn model file"):
         AppLearnModel.load(tmp_path / "other.pt")
+    torch.save({"kind": "applearn", "params": {"n_pos_centres": 20, "no_such_parameter": 1}}, tmp_path / "old.pt")
+    with pytest.raises(ModelFileError, match="another version"):
+        AppLearnModel.load(tmp_path / "old.pt")
     with pytest.raises(TrajectoryDataError, match="lack columns"):
         fit_geometry(train.drop("lat"))
     with pytest.raises(ValueError, match="partition 'P9'"):

@@ -7,7 +7,7 @@ import torch
 from models.urban import cnn_marl
 from models.urban.cnn_marl import CONFLICT, GRID, PATH, Ch3Env, collision_matrix
 from models.urban.col_marl import EpisodeJob, run_episode, train
-from models.urban.parallel import EpisodePool
+from models.parallel import ProcessPool
 from urban_fixtures import crossing_copy, make_copy
 
 
@@ -52,7 +52,7 @@ def test_speed_actions_reach_their_target_and_a_forced_crossing_collides(tmp_pat
 def test_ch3_trains_and_acts(tmp_path, sc1_net):
     files, routes = make_copy(tmp_path / "c", sc1_net, 15, 60.0)
     agents = [f"{r['route_id']}:{c}" for r in routes for c in ("car", "heavy")]
-    with EpisodePool(1, run_episode) as pool:
+    with ProcessPool(1, run_episode) as pool:
         params, rows = train([(files, 15)], agents, "ch3", 2, 0, pool, log=lambda _: None)
     assert params["p.c_w"].shape == (len(agents), 9, cnn_marl.CNN_FILTERS) and params["p.d_w1"].shape == (len(agents), 4, 100)
     assert np.isfinite([r["loss"] for r in rows]).any()

@@ -5,12 +5,12 @@ import torch
 
 from models.urban import col_marl
 from models.urban.col_marl import ReplayBuffers, RouteAgentsQ, dqn_update, kit, run_episode, train
-from models.urban.parallel import EpisodePool
+from models.parallel import ProcessPool
 from urban_fixtures import make_copy
 
 
 def _train(files, agents, variant, seed, episodes=3, gradient_steps=None):
-    with EpisodePool(1, run_episode) as pool:
+    with ProcessPool(1, run_episode) as pool:
         return train([(files, 15)], agents, variant, episodes, seed, pool, log=lambda _: None, gradient_steps=gradient_steps)
 
 

@@ -1,0 +1,40 @@
+"""Jobs in parallel processes: libsumo runs one simulation per process, and the small torch trainings
+run on one thread each, so on a 2-core machine two processes do twice the work of one.
+
+`ProcessPool(workers, fn)` is a callable `jobs -> results` (in order); `pool.iter(jobs)` yields them in
+order as they finish, for progress logs. workers = 1 runs in this process. Workers are spawned (not
+forked): a fork of a process holding a libsumo simulation or torch threads is not safe. Each job must
+seed its own randomness, so results do not depend on the number of workers.
+"""
+
+import multiprocessing
+from collections.abc import Iterator
+from concurrent.futures import ProcessPoolExecutor
+
+
+def _init_worker():
+    import torch
+
+    torch.set_num_threads(1)
+
+
+class ProcessPool:
+    def __init__(self, workers: int, fn):
+        self.workers, self.fn = max(int(workers), 1), fn
+        self._pool = None
+
+    def __enter__(self):
+        if self.workers > 1:
+            self._pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"), initializer=_init_worker)
+        return self
+
+    def __exit__(self, *exc):
+        if self._pool is not None:
+            self._pool.shutdown(cancel_futures=True)
+            self._pool = None
+
+    def iter(self, jobs: list) -> Iterator:
+        return (self.fn(j) for j in jobs) if self._pool is None else self._pool.map(self.fn, jobs)
+
+    def __call__(self, jobs: list) -> list:
+        return list(self.iter(jobs))

@@ -3,6 +3,7 @@
 tracks_20s, trajectory_modes, flights, flight_splits, weather -> trajectory_models (catalogue + model files)
 """
 
+import os
 import time
 
 import dagster as dg
@@ -21,6 +22,7 @@ class TrajectoryModelsConfig(dg.Config):
     discriminators: list[str] | None = Field(default=None, description="bce_gp and/or wgan_gp [demo bce_gp, paper both]")
     algorithms: list[str] | None = Field(default=None, description="triple_gail and/or sinfo_gail [both]")
     dt_s: float = Field(default=20.0, description="time step of the tracks the models learn from [s]")
+    workers: int | None = Field(default=None, description="bundles trained in parallel, one process (one core) each [None: the usable cores]")
 
 
 def resolve(config: dg.Config, field_names: tuple[str, ...]) -> dict:
@@ -40,7 +42,8 @@ def trajectory_models(context: dg.AssetExecutionContext, config: TrajectoryModel
 
     from models.trajectory.ppo import DISCRIMINATORS
     from models.markdown import markdown_table
-    from models.trajectory.training import Budget, catalogue_row, prepare, runs, train_model
+    from models.parallel import ProcessPool
+    from models.trajectory.training import Budget, prepare, runs, train_and_save
 
     torch.set_num_threads(1)  # small nets; with 2 threads on a busy 2-core machine OpenMP contention made training ~10x slower
     p = resolve(config, ("seeds", "bc_epochs", "gail_iterations", "discriminators", "algorithms"))
@@ -50,12 +53,14 @@ def trajectory_models(context: dg.AssetExecutionContext, config: TrajectoryModel
     todo = runs(p["algorithms"], p["discriminators"], p["seeds"])
     context.log.info(f"training {len(todo)} model bundles ({config.profile} profile: {p})")
     rows, t0 = [], time.perf_counter()
-    for k, (algorithm, scheme, seed, disc) in enumerate(todo, 1):
-        model, history = train_model(setup, algorithm, scheme, seed, Budget(p["bc_epochs"], p["gail_iterations"]), disc)
-        path = model.save(artifact_path("models/trajectory", f"{model.config['name']}.pt"))
-        rows.append(catalogue_row(model, history, setup, config.profile, str(path)))
-        context.log.info(f"[{k}/{len(todo)}] {model.config['name']}: {model.config['train_seconds']:.1f} s, "
-                         f"final BC loss {rows[-1]['final_bc_loss']:.3f}")
+    folder = str(artifact_path("models/trajectory", ""))
+    budget = Budget(p["bc_epochs"], p["gail_iterations"])
+    jobs = [(setup, algorithm, scheme, seed, budget, disc, folder, config.profile) for algorithm, scheme, seed, disc in todo]
+    # each bundle trains on one thread: the bundles share the cores as parallel processes
+    with ProcessPool(config.workers or len(os.sched_getaffinity(0)), train_and_save) as pool:
+        for k, row in enumerate(pool.iter(jobs), 1):
+            rows.append(row)
+            context.log.info(f"[{k}/{len(todo)}] {row['name']}: {row['train_s']:.1f} s, final BC loss {row['final_bc_loss']:.3f}")
     catalogue = pl.DataFrame(rows, schema_overrides={"discriminator": pl.String})
     summary = catalogue.group_by("method", "scheme").agg(pl.len().alias("seeds"), pl.col("train_s").mean().round(1).alias("mean_train_s"))
     return dg.Output(catalogue, metadata={

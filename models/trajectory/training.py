@@ -4,6 +4,7 @@
 
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import polars as pl
@@ -106,6 +107,17 @@ def runs(algorithms: list[str], discriminators: list[str], seeds: list[int]) -> 
     """(algorithm, scheme, seed, discriminator) of every bundle to train: each GAIL under MMIL and SMIL, plus BC."""
     out = [(a, s, seed, d) for seed in seeds for a in algorithms for d in discriminators for s in ("MMIL", "SMIL")]
     return out + [("bc", "single", seed, None) for seed in seeds]
+
+
+def train_and_save(job: tuple) -> dict:
+    """One model bundle, for a worker process: (setup, algorithm, scheme, seed, budget, discriminator, folder,
+    profile) -> its catalogue row, the model file written to folder/<name>.pt. train_model seeds itself,
+    so the result does not depend on where it ran."""
+    setup, algorithm, scheme, seed, budget, discriminator, folder, profile = job
+    model, history = train_model(setup, algorithm, scheme, seed, budget, discriminator)
+    Path(folder).mkdir(parents=True, exist_ok=True)
+    path = model.save(Path(folder) / f"{model.config['name']}.pt")
+    return catalogue_row(model, history, setup, profile, str(path))
 
 
 def catalogue_row(model: TrajectoryModel, history: dict, setup: Setup, profile: str, path: str) -> dict:

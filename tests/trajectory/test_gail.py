@@ -6,6 +6,7 @@ import polars as pl
 import pytest
 import torch
 
+from models.parallel import ProcessPool
 from models.trajectory.bc import train_bc, train_mode_classifier
 from models.trajectory.data import demonstrations
 from models.trajectory.env import DAY0_S
@@ -15,7 +16,7 @@ from models.trajectory.model import TrajectoryModel, TrajectoryModelError, start
 from models.trajectory.nets import Policy, Selector
 from models.trajectory.predict import PredictionInputError, main, predict_flights, read_first_states
 from models.trajectory.report import growth_rates
-from models.trajectory.training import Budget, prepare, random_policy_like, train_model
+from models.trajectory.training import Budget, prepare, random_policy_like, train_and_save, train_model
 
 torch.set_num_threads(1)
 
@@ -114,10 +115,15 @@ def test_saved_model_reloads_and_predicts_identically(setup, trained, tmp_path):
     assert path.with_suffix(".json").is_file()
 
 
-def test_same_seed_same_metrics(setup):
+def test_same_seed_same_metrics(setup, tmp_path):
     budget = Budget(bc_epochs=2, gail_iterations=1)
-    runs = [metrics_table(evaluate_model(setup[0], train_model(setup[0], "sinfo_gail", "MMIL", 3, budget, "wgan_gp")[0]).errors)
-            for _ in range(2)]
+    here = train_model(setup[0], "sinfo_gail", "MMIL", 3, budget, "wgan_gp")[0]
+    # again in a worker process, as the asset trains it (beside another bundle): the same model, the same metrics
+    with ProcessPool(2, train_and_save) as pool:
+        row, _ = pool([(setup[0], "sinfo_gail", "MMIL", 3, budget, "wgan_gp", tmp_path, "demo"),
+                       (setup[0], "triple_gail", "MMIL", 3, budget, "bce_gp", tmp_path, "demo")])
+    there = TrajectoryModel.load(row["path"])
+    runs = [metrics_table(evaluate_model(setup[0], m).errors) for m in (here, there)]
     assert runs[0].equals(runs[1])
 
 

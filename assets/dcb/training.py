@@ -20,8 +20,11 @@ class TrainingConfig(dg.Config):
     seeds: list[int] | None = Field(default=None, description="training seeds (None: the profile's)")
     methods: list[str] = Field(default=list(METHODS), description="learners to train: " + ", ".join(METHODS))
     state: str = Field(default="thesis", description="local state: thesis (d_i, h_i) or extended (d_i, h_i, x_i: among the flights cheapest to push out of its hotspot)")
-    reward: str = Field(default="thesis", description="thesis (Eq 5.2-5.4 per flight) or difference (each flight's own change of the day's Eq 5.2 total)")
+    reward: str = Field(default="thesis", description="thesis (Eq 5.2-5.4 per flight), difference (each flight's own change of the day's Eq 5.2 total) "
+                        "or overload (each flight's own change of the day's entries beyond capacity)")
     learning_rate: float = Field(default=LEARNING_RATE, description="η of the Q updates (Eq 5.6, 5.7); the thesis's 0.01 is tuned for 15,000 episodes")
+    readout: str = Field(default="repair", description="repair: the greedy rollout and the best training episode with hotspots left resolved FCFS "
+                         "and unneeded delay trimmed; best_episode: the two as they are (the better one is returned)")
 
 
 @dg.asset(group_name="dcb", description="Ground delay of every flight in each learner's solution, per case and seed.")
@@ -37,7 +40,7 @@ def dcb_delays(context: dg.AssetExecutionContext, config: TrainingConfig, dcb_ca
         for method in config.methods:
             for seed in seeds:
                 r = train(problem, method, seed, episodes, log=context.log.debug, state=config.state, reward=config.reward,
-                          learning_rate=config.learning_rate)
+                          learning_rate=config.learning_rate, readout=config.readout)
                 frames.append(delay_rows(case, method, seed, problem, r.delay_min, r.runtime_s, episodes=r.episodes))
                 runs.append({"case": case, "method": method, "seed": seed, "runtime_s": round(r.runtime_s, 1), "hotspots_left": r.hotspots_left,
                              "total_delay_min": int(r.delay_min.sum()), "solution": r.source,
@@ -45,4 +48,5 @@ def dcb_delays(context: dg.AssetExecutionContext, config: TrainingConfig, dcb_ca
                 context.log.info(f"{runs[-1]}")
     return dg.Output(pl.concat(frames), metadata={"episodes_per_level": episodes, "seeds": dg.MetadataValue.json(seeds),
                                                   "state": config.state, "reward": config.reward, "learning_rate": config.learning_rate,
+                                                  "readout": config.readout,
                                                   "runs": dg.MetadataValue.json(runs)})

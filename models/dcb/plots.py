@@ -11,7 +11,7 @@ from models.dcb.problem import REGULATED_MIN, DCBProblem
 
 # Fig 5.7's colours (HCMARL blue, stHMIRL red, sHMIRL green, tHMIRL black) plus the two flat learners
 COLORS = {"HCMARL": "#1f77b4", "stHMIRL": "#d62728", "sHMIRL": "#2ca02c", "tHMIRL": "#000000", "MIRL": "#9467bd", "CMARL": "#ff7f0e",
-          "optimum": "#17becf", "FCFS": "#bcbd22"}
+          "optimum": "#17becf", "FCFS": "#bcbd22", "readout_only": "#8c564b"}
 
 
 def _png(fig: Figure) -> bytes:

@@ -12,7 +12,8 @@ Reward of flight-agent i (Eq 5.2-5.4), λ = 20:
     DC_i = SDC(d_i, class_i) = d_i · cost_class / 81   (delay in average-cost minutes, see DELAY_COST_EUR_PER_MIN)
 
 Beyond the thesis (options of the learners, docs/dcb.md): `difference_reward`, each flight's own change
-of the day's total of Eq 5.2, and `movers`, the extra component of the extended local state.
+of the day's total of Eq 5.2, `overload_reward`, the same for the day's entries beyond capacity, and
+`movers`, the extra component of the extended local state.
 """
 
 from dataclasses import dataclass
@@ -106,7 +107,7 @@ class DCBProblem:
         self.capacity = np.repeat(self.sector_capacity, self.n_hours)  # [sector*hour], constant over the day
         self.relevant = self._entries_that_can_be_hot()
         # the learners evaluate every step: their entries' arrays gathered once, not at every call
-        self._relevant_entries = self._entry_arrays(self.relevant)
+        self.relevant_entries = self._entry_arrays(self.relevant)
         self._all_entries = self._entry_arrays(slice(None))
         cost = flights["aircraft_class"].replace_strict(DELAY_COST_EUR_PER_MIN, return_dtype=pl.Float64).to_numpy()
         self.delay_weight = cost / AVG_DELAY_COST_EUR_PER_MIN  # DC per minute of delay, in average-cost minutes
@@ -133,7 +134,7 @@ class DCBProblem:
 
     def evaluate(self, delay_min: np.ndarray, all_entries: bool = False) -> Evaluation:
         """Hotspots for a delay vector; `all_entries` also counts entries that can never be in a hotspot."""
-        e = self._all_entries if all_entries else self._relevant_entries
+        e = self._all_entries if all_entries else self.relevant_entries
         key = e.keys(delay_min)
         if all_entries and (key % self.n_hours).max() >= self.n_hours - 1:
             raise ValueError(f"delays of up to {delay_min.max()} min run past the problem's {self.n_hours}-hour grid")
@@ -176,7 +177,7 @@ class DCBProblem:
         each entry that changed sector-hour, is credited the congestion its leaving removed from the old
         one (its own minutes there, or the whole hotspot's minutes if it was the entry that cleared it)
         and charged what its arrival added to the new one. Exact for one entry per flight and sector-hour."""
-        e = self._relevant_entries
+        e = self.relevant_entries
         change = before.entry_key != after.entry_key
         k0, k1 = before.entry_key[change], after.entry_key[change]
         dur, count = e.dur_min[change], after.counts
@@ -186,6 +187,23 @@ class DCBProblem:
         added = (count[k1] > cap1) * inside[k1] - (count[k1] - 1 > cap1) * (inside[k1] - dur)
         congestion = np.bincount(e.flight[change], weights=removed - added, minlength=self.n_flights)
         return AVG_DELAY_COST_EUR_PER_MIN * congestion - LAMBDA * self.delay_weight * added_min
+
+    def overload_reward(self, added_min: np.ndarray, before: Evaluation, after: Evaluation) -> np.ndarray:
+        """The difference reward of G = -P · Σ_k max(0, count_k - capacity_k) - λ · Σ_i DC_i: the day's overload
+        (entries beyond capacity, summed over sector-hours) instead of its congested minutes.
+
+        `difference_reward` credits a flight that leaves a hotspot with its own minutes there even when the
+        hotspot stays overloaded, so every flight of a hotspot gains by fleeing: the lockstep over-delay of
+        docs/dcb.md. Here leaving pays P only if it lowered the overload (the hour still had an entry too many
+        with the flight in it) and arriving costs P if it raised it; a second flight leaving an hour the first
+        has already cleared pays its delay and earns nothing. P = 2 · λ · MaxDelay: resolving an excess entry is always worth more
+        than any admissible delay. Exact for one entry per flight and sector-hour."""
+        e = self.relevant_entries
+        change = before.entry_key != after.entry_key
+        k0, k1, count = before.entry_key[change], after.entry_key[change], after.counts
+        lowered = (count[k0] + 1 > self.capacity[k0]).astype(np.float64) - (count[k1] > self.capacity[k1])
+        penalty = 2 * LAMBDA * self.max_delay_min
+        return penalty * np.bincount(e.flight[change], weights=lowered, minlength=self.n_flights) - LAMBDA * self.delay_weight * added_min
 
 
 def base_capacities(entries: pl.DataFrame, sectors: pl.DataFrame) -> dict[str, int]:

@@ -17,19 +17,22 @@ d_i to d_i // state_step (φ_L, Eq 5.11) and lets an action add `action_step` mi
     sHMIRL    independent   (10, 1)     state abstraction only
     tHMIRL    independent   (1, 10)     temporal abstraction only
 
-Two options beyond the thesis (defaults: "thesis"), see docs/dcb.md for what they change:
+Options beyond the thesis (defaults: the thesis's, but for the read-out), see docs/dcb.md for what they change:
 - state="extended": s_i = (d_i, h_i, x_i), x_i = 1 if one of the flight's hot entries is among the
   `demand - capacity` entries of its hotspot closest to the end of their hour (DCBProblem.movers);
 - reward="difference": each flight is rewarded with what its own action changed in the day's total
-  of Eq 5.2 (DCBProblem.difference_reward) instead of its local Eq 5.2 reward.
+  of Eq 5.2 (DCBProblem.difference_reward) instead of its local Eq 5.2 reward; reward="overload": the
+  same for the day's overload, entries beyond capacity (DCBProblem.overload_reward).
 
 Q-values of the abstract level initialise the ground level (Q_ground(s) = Q_abstract(φ(s))), which
-then trains with exploration starting at ε = 0.7. The solution is the greedy (ε = 0) rollout of the
-final ground-level policy - or, where that rollout leaves hotspots or more total delay, the best
-ground-level episode met in training (fewest hotspots, then least total delay): an operator keeps
-the best schedule found, and the greedy policy of a short run often still leaves hotspots.
-`TrainResult.source` says which one was returned; `greedy_hotspots` / `greedy_delay_min` always
-describe the greedy rollout, so the policy itself can be judged apart from the fallback.
+then trains with exploration starting at ε = 0.7. Two candidate schedules come out: the greedy (ε = 0)
+rollout of the final ground-level policy and the best ground-level episode met in training (fewest
+hotspots, then least total delay). readout="repair" (default) passes both through `readout.polish`
+(hotspots left resolved first come first served within MaxDelay, then delay no hotspot needs trimmed);
+readout="best_episode" takes them as they are. The better one (fewest hotspots, then least delay; ties:
+greedy) is returned: an operator keeps the best schedule found. `TrainResult.source` says which one;
+`greedy_hotspots` / `greedy_delay_min` always describe the raw greedy rollout, so the policy itself can
+be judged apart from the read-out.
 """
 
 import time
@@ -40,6 +43,7 @@ import numpy as np
 from models.dcb.cmarl import CoordinatedQ
 from models.dcb.mirl import LEARNING_RATE, IndependentQ
 from models.dcb.problem import DCBProblem
+from models.dcb.readout import polish
 
 EPISODES = 15_000  # per level (thesis §5.6.2)
 EPSILON_START = 0.9  # ε at the first (abstract or only) level
@@ -49,7 +53,10 @@ EPSILON_EVERY = 120  # ... every this many episodes (of 15,000; scaled to shorte
 H_CAP = 3  # h_i states: 0, 1, 2, >= 3 hotspots
 ABSTRACT_STEP_MIN = 10  # I, the abstract level's interval
 STATES = {"thesis": 1, "extended": 2}  # local state -> values of its extra component x_i
-REWARDS = ("thesis", "difference")  # Eq 5.2-5.4 per flight, or its difference reward (DCBProblem.difference_reward)
+# Eq 5.2-5.4 per flight; its difference reward (DCBProblem.difference_reward); the difference reward of the overload
+# (DCBProblem.overload_reward)
+REWARDS = ("thesis", "difference", "overload")
+READOUTS = ("repair", "best_episode")  # the solution read out of a trained policy, see the module docstring
 
 
 @dataclass(frozen=True)
@@ -91,7 +98,7 @@ class TrainResult:
     runtime_s: float
     episodes: int  # over all levels
     curve: np.ndarray  # [episode, 3]: episode, hotspots left and total delay [min], every 50th training episode
-    source: str  # "greedy" (rollout of the final policy) or "best_episode" (best ground-level training episode)
+    source: str  # "greedy" (rollout of the final policy) or "best_episode" (best ground-level training episode), repaired or not
     greedy_hotspots: int  # hotspots left by the greedy rollout of the final policy (whatever was returned)
     greedy_delay_min: int  # its total delay
 
@@ -125,7 +132,10 @@ def run_episode(problem: DCBProblem, learner, level: Level, eps: float, rng: np.
         ev = problem.evaluate(delay)
         next_state = local_state(problem, level, delay, ev)
         if learn:
-            r = problem.reward(delay, ev) if reward == "thesis" else problem.difference_reward(action * level.action_step, before, ev)
+            if reward == "thesis":
+                r = problem.reward(delay, ev)
+            else:
+                r = (problem.difference_reward if reward == "difference" else problem.overload_reward)(action * level.action_step, before, ev)
             learner.update(state, action, r, next_state, agents)
         state = next_state
     return delay, ev.hotspots
@@ -138,15 +148,19 @@ def _make(learner_cls, problem: DCBProblem, n_states: int, lr: float):
 
 
 def train(problem: DCBProblem, method: str, seed: int, episodes: int = EPISODES, log=None, state: str = "thesis",
-          reward: str = "thesis", learning_rate: float = LEARNING_RATE) -> TrainResult:
+          reward: str = "thesis", learning_rate: float = LEARNING_RATE, readout: str = "repair") -> TrainResult:
     """Train `method` on `problem` (`episodes` per level) and return its solution (greedy rollout or best episode).
 
     state: "thesis" (d_i, h_i) or "extended" (d_i, h_i, x_i), see `local_state`; reward: "thesis" (Eq 5.2-5.4
-    per flight) or "difference" (`DCBProblem.difference_reward`); learning_rate: η of Eq 5.6 / 5.7 (thesis 0.01)."""
+    per flight), "difference" (`DCBProblem.difference_reward`) or "overload" (`DCBProblem.overload_reward`); learning_rate:
+    η of Eq 5.6 / 5.7 (thesis 0.01); readout: "repair" (greedy rollout and best episode each through `readout.polish`)
+    or "best_episode" (the two as they are)."""
     if state not in STATES:
         raise ValueError(f"unknown DCB local state {state!r}: expected one of {', '.join(STATES)}")
     if reward not in REWARDS:
         raise ValueError(f"unknown DCB reward {reward!r}: expected one of {', '.join(REWARDS)}")
+    if readout not in READOUTS:
+        raise ValueError(f"unknown DCB read-out {readout!r}: expected one of {', '.join(READOUTS)}")
     if not 0 < learning_rate <= 1:
         raise ValueError(f"DCB learning rate {learning_rate} is outside (0, 1]")
     learner_cls, abstract = METHODS[method]
@@ -170,7 +184,12 @@ def train(problem: DCBProblem, method: str, seed: int, episodes: int = EPISODES,
                     log(f"{method} seed {seed} level {level}: episode {e}/{episodes}, hotspots left {hot}, total delay {delay.sum()} min")
             n += 1
     delay, hot = run_episode(problem, learner, ground, 0.0, rng, learn=False)
-    greedy, source = (int(hot), int(delay.sum())), "greedy"
-    if (hot, delay.sum()) > best[:2]:
-        (hot, _, delay), source = best, "best_episode"
+    greedy = (int(hot), int(delay.sum()))
+    candidates = {"greedy": delay} if best[2] is None else {"greedy": delay, "best_episode": best[2]}  # None: no episode trained
+    if readout == "repair":
+        candidates = {k: polish(problem, d) for k, d in candidates.items()}
+    # fewest hotspots, then least delay; ties keep the greedy rollout (dicts keep their order, min the first)
+    source = min(candidates, key=lambda k: (problem.evaluate(candidates[k]).hotspots, candidates[k].sum()))
+    delay = candidates[source]
+    hot = problem.evaluate(delay).hotspots
     return TrainResult(delay, int(hot), time.perf_counter() - started, episodes * len(levels), np.asarray(curve), source, *greedy)

@@ -31,7 +31,7 @@ def test_dcb_assets_materialise_on_a_slice(tmp_path):
     assert cases["case"] == "cap90" and cases["hotspots"] == read_table("dcb_hotspots").height > 0
     assert (read_table("dcb_hotspots").select((pl.col("demand") > pl.col("capacity")).all()).item())
     res = read_table("dcb_results")
-    assert sorted(res["method"].unique()) == ["FCFS", "HCMARL", "MIRL", "optimum"] and res.height == 2 + 2 * 2
+    assert sorted(res["method"].unique()) == ["FCFS", "HCMARL", "MIRL", "optimum", "readout_only"] and res.height == 3 + 2 * 2
     opt = res.filter(pl.col("method") == "optimum").row(0, named=True)
     assert opt["hotspots_left"] == 0 and opt["gap_to_optimum"] == 0.0
     assert read_table("dcb_delays").height == 2 * 2 * flights.height
@@ -39,8 +39,11 @@ def test_dcb_assets_materialise_on_a_slice(tmp_path):
     assert summ["n_seeds"] == 2 and summ["mean"] == res.filter(pl.col("method") == "MIRL")["total_delay_min"].mean()
     checks = {e.check_name: e.passed for e in result.get_asset_check_evaluations()}
     assert checks["demand_rows_accounted"] and checks["optimum_is_lower_bound"] and checks["entries_consistent"]
-    runs = result.asset_materializations_for_node("dcb_delays")[0].metadata["runs"].data  # greedy policy beside what was returned
-    assert len(runs) == 4 and all(r["solution"] == "best_episode" or r["greedy_total_delay_min"] == r["total_delay_min"] for r in runs)
+    # the default read-out repairs what the policies leave: no run with a hotspot; the raw greedy policy is reported beside it
+    assert checks["learners_leave_no_hotspot"] and (res["hotspots_left"] == 0).all()
+    meta = result.asset_materializations_for_node("dcb_delays")[0].metadata
+    runs = meta["runs"].data
+    assert meta["readout"].value == "repair" and len(runs) == 4 and all({"greedy_hotspots_left", "greedy_total_delay_min"} <= set(r) for r in runs)
     md = result.asset_materializations_for_node("dcb_results")[0].metadata
     assert any(k.startswith("dcb_demand_capacity_cap90") for k in md) and "dcb_delay_histogram_cap90" in md
     assert "dcb_box_plots" in result.asset_materializations_for_node("dcb_summary")[0].metadata

@@ -76,7 +76,7 @@ RECORDED = {
 
 @pytest.mark.parametrize("method, state, reward", list(RECORDED))
 def test_same_delays_as_before_the_speed_ups(small_case, method, state, reward):
-    r = train(small_case, method, seed=1, episodes=20, state=state, reward=reward)
+    r = train(small_case, method, seed=1, episodes=20, state=state, reward=reward, readout="best_episode")
     d = r.delay_min
     assert (int(d.sum()), int((d * np.arange(1, d.size + 1)).sum()), r.source) == RECORDED[(method, state, reward)]
 
@@ -93,7 +93,7 @@ RECORDED_CMARL = {
 
 @pytest.mark.parametrize("method, state, reward, seed", list(RECORDED_CMARL))
 def test_coordinated_learners_same_delays_as_before_the_restructuring(small_case, method, state, reward, seed):
-    r = train(small_case, method, seed=seed, episodes=20, state=state, reward=reward)
+    r = train(small_case, method, seed=seed, episodes=20, state=state, reward=reward, readout="best_episode")
     d = r.delay_min
     assert (int(d.sum()), int((d * np.arange(1, d.size + 1)).sum()), r.source) == RECORDED_CMARL[(method, state, reward, seed)]
 
@@ -101,6 +101,6 @@ def test_coordinated_learners_same_delays_as_before_the_restructuring(small_case
 def test_full_day_hcmarl_same_delays_as_before_the_restructuring(swiss_tables):
     """The whole day (1,244 flights, graphs of thousands of edges, hash collisions possible): same delays too."""
     sectors, flights, entries = swiss_tables
-    r = train(build_problem(entries, sectors, flights, 0.95, 60), "HCMARL", seed=0, episodes=15)
+    r = train(build_problem(entries, sectors, flights, 0.95, 60), "HCMARL", seed=0, episodes=15, readout="best_episode")
     d = r.delay_min
     assert (int(d.sum()), int((d * np.arange(1, d.size + 1)).sum()), r.source) == (1871, 1120341, "best_episode")

@@ -34,8 +34,8 @@ def test_same_seed_same_delays(small_case, method, state, reward):
 def test_extended_state_and_difference_reward(small_case, method):
     """The options leave zero hotspots too, and on this case with less total delay than the thesis variant
     (optimum 20 min; seed 0, 40 episodes: MIRL 155 / 82, CMARL 148 / 132, sHMIRL 148 / 23 min, thesis / options)."""
-    thesis = train(small_case, method, seed=0, episodes=40)
-    r = train(small_case, method, seed=0, episodes=40, state="extended", reward="difference")
+    thesis = train(small_case, method, seed=0, episodes=40, readout="best_episode")
+    r = train(small_case, method, seed=0, episodes=40, state="extended", reward="difference", readout="best_episode")
     assert r.hotspots_left == 0 == small_case.evaluate(r.delay_min, all_entries=True).hotspots
     assert r.delay_min.sum() < thesis.delay_min.sum()
 
@@ -63,7 +63,7 @@ def test_vectorised_update_equals_per_flight_loop():
 @pytest.mark.parametrize("method", ["MIRL", "sHMIRL"])
 def test_greedy_rollout_is_reported_beside_the_returned_solution(small_case, method):
     """The returned solution is the greedy rollout unless a training episode beat it (fewer hotspots, then less delay)."""
-    r = train(small_case, method, seed=0, episodes=40)
+    r = train(small_case, method, seed=0, episodes=40, readout="best_episode")
     returned = (r.hotspots_left, int(r.delay_min.sum()))
     greedy = (r.greedy_hotspots, r.greedy_delay_min)
     assert greedy == returned if r.source == "greedy" else greedy > returned
@@ -74,8 +74,8 @@ def test_greedy_rollout_is_reported_beside_the_returned_solution(small_case, met
 def test_learning_rate_option(small_case):
     """η = 0.1 with the difference reward: the greedy policy itself resolves the small case close to the optimum
     (23 vs 20 min; η = 0.01 at this budget: greedy leaves 1 hotspot, the best episode has 82 min)."""
-    slow = train(small_case, "MIRL", seed=0, episodes=40, reward="difference")
-    fast = train(small_case, "MIRL", seed=0, episodes=40, reward="difference", learning_rate=0.1)
+    slow = train(small_case, "MIRL", seed=0, episodes=40, reward="difference", readout="best_episode")
+    fast = train(small_case, "MIRL", seed=0, episodes=40, reward="difference", learning_rate=0.1, readout="best_episode")
     assert slow.greedy_hotspots > 0 and slow.source == "best_episode"
     assert fast.source == "greedy" and fast.hotspots_left == 0 == small_case.evaluate(fast.delay_min, all_entries=True).hotspots
     assert fast.delay_min.sum() <= 1.2 * 20 < slow.delay_min.sum()

@@ -91,6 +91,20 @@ def test_movers_are_the_entries_closest_to_the_end_of_their_hour():
     assert dict(zip(p.flight_ids, p.movers(zero, p.evaluate(zero)))) == {"f1": 0, "f2": 0, "f3": 1, "f4": 1, "f5": 0}
 
 
+def assert_is_own_change_of(p, reward, total):
+    """reward(added, before, after)[i] == total(after) - total(after with i's action undone), 40 random steps of 1 or 10 min."""
+    rng = np.random.default_rng(0)
+    for _ in range(40):
+        before = rng.integers(0, 50, p.n_flights)
+        added = rng.integers(0, 2, p.n_flights) * rng.choice([1, 10])
+        after = before + added
+        r = reward(added, p.evaluate(before), p.evaluate(after))
+        for i in range(p.n_flights):
+            undone = after.copy()
+            undone[i] = before[i]
+            assert r[i] == pytest.approx(total(after) - total(undone))
+
+
 def test_difference_reward_is_each_flights_own_change_of_the_day_total():
     """D_i = G(z) - G(z with i's action undone), G = -81 Σ TDC - λ Σ DC, checked against recomputing G."""
     p = make_problem(HAND_BUILT, {"A": 2, "B": 1})
@@ -98,16 +112,7 @@ def test_difference_reward_is_each_flights_own_change_of_the_day_total():
     def total(d):
         return -81.0 * p.evaluate(d, all_entries=True).congested_min.sum() - 20.0 * (p.delay_weight * d).sum()
 
-    rng = np.random.default_rng(0)
-    for _ in range(40):
-        before = rng.integers(0, 50, p.n_flights)
-        added = rng.integers(0, 2, p.n_flights) * rng.choice([1, 10])
-        after = before + added
-        r = p.difference_reward(added, p.evaluate(before), p.evaluate(after))
-        for i in range(p.n_flights):
-            undone = after.copy()
-            undone[i] = before[i]
-            assert r[i] == pytest.approx(total(after) - total(undone))
+    assert_is_own_change_of(p, p.difference_reward, total)
     # f3 delayed 1 min clears A 10:00 (15 + 20 congested min gone) and overloads A 11:00 (f3, f4, f5: 30 min): 81 * 5 - 20
     zero = np.zeros(p.n_flights, dtype=np.int64)
     one = (np.array(p.flight_ids) == "f3").astype(np.int64)

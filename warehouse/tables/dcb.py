@@ -5,7 +5,7 @@ import pyarrow as pa
 from warehouse.table import TS, Table, col
 
 _CASE = col("case", pa.string(), "", "evaluation case, e.g. cap90 = every sector at 90 % of its base capacity")
-_METHOD = col("method", pa.string(), "", "MIRL, CMARL, HCMARL, stHMIRL, sHMIRL, tHMIRL (learners), optimum (integer program) or FCFS")
+_METHOD = col("method", pa.string(), "", "MIRL, CMARL, HCMARL, stHMIRL, sHMIRL, tHMIRL (learners), optimum (integer program), FCFS or readout_only (the learners' read-out of zero delays)")
 _SEED = col("seed", pa.int64(), "", "training seed (0 for the deterministic optimum and FCFS)")
 _FLIGHT = col("flight_id", pa.string(), "", "flight key (foundation ingest's callsign_icao24_start, or the SO6 flight key)")
 _SECTOR = col("sector", pa.string(), "", "sector name (grid: R<row>C<col>_FL<lower>-<upper>)")
@@ -104,7 +104,8 @@ TABLES: list[Table] = [
     ),
     Table(
         "dcb_delays",
-        "Ground delay of every flight in the greedy solution of every learner, case and seed.",
+        "Ground delay of every flight in the solution read out of every learner, case and seed: its greedy rollout or best "
+        "training episode, hotspots left repaired FCFS and unneeded delay trimmed unless readout=best_episode (docs/dcb.md).",
         (_CASE, _METHOD, _SEED, _FLIGHT, _DELAY, _RUNTIME,
          col("episodes", pa.int64(), "", "training episodes over all abstraction levels")),
     ),

@@ -8,10 +8,11 @@ sub-steps of 0.2 s so that crossing collisions are detected.
 State (Eq 4.2), scaled to about [-1, 1] for the networks:
     s = [vel / vel_max, pos / 200 m, fveh_dist / 200 m (-1: none), fveh_vel / vel_max (-1: none), col_term, density]
 pos is the distance still to go to the junction ahead (0 inside a junction). col_term and density are
-computed centrally per junction, for all vehicles at once: inter_time = pos / vel; col_term = 1 when a
-vehicle on another road approaching the same junction has |Δinter_time| < 1.5 s; density = vehicles
-approaching that junction / its incoming lanes. Vehicles on the same road are left out of col_term: they
-cannot cross each other's path, the front-vehicle terms cover them.
+computed centrally per junction, for all vehicles at once: inter_time = inter_dist / vel with inter_dist the
+distance to the junction's centre (Eq 4.1; 0 once past it); col_term = 1 when a vehicle on another road
+approaching the same junction has |Δinter_time| < 1.5 s; density = the number of such vehicles / the
+junction's incoming lanes (§4.2.1). Vehicles on the same road are left out of col_term: they cannot cross
+each other's path, the front-vehicle terms cover them.
 
 Variants: "col" (col-MARL, reward Eq 4.3-4.7) and "ind" (i-MARL ablation: the first 4 state terms only,
 reward Eq 3.2-3.3 without a collision prediction, C = 1).
@@ -61,18 +62,19 @@ STATE_DIM = {"col": 6, "ind": 4}
 _CAR_MPS2, _HEAVY_MPS2 = np.array(ACTIONS_MPS2["car"]), np.array(ACTIONS_MPS2["heavy"])
 
 
-def junction_terms(junction: np.ndarray, road: np.ndarray, dist_m: np.ndarray, speed: np.ndarray, incoming_lanes: np.ndarray):
+def junction_terms(junction: np.ndarray, road: np.ndarray, centre_dist_m: np.ndarray, speed: np.ndarray, incoming_lanes: np.ndarray):
     """col_term and density of every vehicle (Eq 4.2), vectorised over all vehicles and junctions.
-    junction = -1 for vehicles with no junction ahead; road = integer code of the vehicle's road."""
-    inter_time = dist_m / np.maximum(speed, 0.1)
+    junction = -1 for vehicles with no junction ahead; road = integer code of the vehicle's road; centre_dist_m =
+    inter_dist, the distance to the junction's centre (Eq 4.1)."""
+    inter_time = centre_dist_m / np.maximum(speed, 0.1)
     active = junction >= 0
     same_junction = (junction[:, None] == junction[None, :]) & active[:, None] & active[None, :]
     other_road = road[:, None] != road[None, :]
     close_in_time = np.abs(inter_time[:, None] - inter_time[None, :]) < INTER_TIME_S
-    col_term = (same_junction & other_road & close_in_time).any(axis=1).astype(float)
-    counts = np.bincount(junction[active], minlength=len(incoming_lanes))
-    density = np.where(active, counts[np.maximum(junction, 0)] / incoming_lanes[np.maximum(junction, 0)], 0.0)
-    return col_term, density
+    conflicts = (same_junction & other_road & close_in_time).sum(axis=1)
+    # density (§4.2.1): "the number of vehicles that the ego vehicle is predicted to collide with", per incoming lane
+    density = np.where(active, conflicts / incoming_lanes[np.maximum(junction, 0)], 0.0)
+    return (conflicts > 0).astype(float), density
 
 
 def safe_dist(speed: np.ndarray, rule: str | None = None) -> np.ndarray:
@@ -248,7 +250,8 @@ class UrbanParallelEnv(ParallelEnv):
 
     def _state_reward(self, snap, junction: np.ndarray, road_code: np.ndarray, dist: np.ndarray):
         """State (Eq 4.2; i-MARL: its first 4 terms) and non-terminal reward of every vehicle."""
-        col_term, density = junction_terms(junction, road_code, dist, snap.speed, self.sim.index.incoming_lanes)
+        index = self.sim.index
+        col_term, density = junction_terms(junction, road_code, index.centre_dist(snap.lane, snap.lane_pos), snap.speed, index.incoming_lanes)
         state = np.column_stack([self.individual_state(snap, dist), col_term, density])[:, : STATE_DIM[self.variant]]
         return state.astype(np.float32), reward(self.variant, snap.speed, self.vmax, snap.leader_dist, col_term)
 

@@ -48,13 +48,14 @@ def artificial_network(n_intersections: int, out: Path, road_length_m: float = 2
     return out
 
 
-def read_net(path: Path) -> sumolib.net.Net:
-    """sumolib network, or one UrbanInputError line if the file is missing or not a SUMO network."""
+def read_net(path: Path, internal: bool = False) -> sumolib.net.Net:
+    """sumolib network (with the lanes inside the junctions if `internal`), or one UrbanInputError line if the file is
+    missing or not a SUMO network."""
     path = Path(path)
     if not path.exists():
         raise UrbanInputError(f"{path}: network file not found")
     try:
-        net = sumolib.net.readNet(str(path), withInternal=False)
+        net = sumolib.net.readNet(str(path), withInternal=internal)
     except Exception as e:  # sumolib raises bare SAX/XML errors
         raise UrbanInputError(f"{path}: not a readable SUMO .net.xml ({type(e).__name__}: {e})") from None
     if not net.getEdges():

@@ -17,6 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from sumolib.geomhelper import polygonOffsetWithMinimumDistanceToPoint
+
 from models.urban.network import UrbanInputError, read_net
 from models.urban.scenarios import MIN_GAP_M, VEHICLE_TYPES
 
@@ -56,12 +58,31 @@ class NetIndex:
         self.edge_junction = {e.getID(): j_index[e.getToNode().getID()] for e in net.getEdges()}
         self.lane_length = {ln.getID(): ln.getLength() for e in net.getEdges() for ln in e.getLanes()}
         self.j_index = j_index
+        self.centre_at = _centre_positions(net_path, net)
+
+    def centre_dist(self, lane: list, lane_pos: np.ndarray) -> np.ndarray:
+        """inter_dist of Eq 4.1: the distance (m) still to drive to the centre of the junction ahead, 0 once past it."""
+        return np.maximum(np.array([self.centre_at.get(ln, 0.0) for ln in lane], float) - lane_pos, 0.0)
 
     def junction_of(self, road: str) -> int:
         """Junction a vehicle on `road` drives to; on an internal edge (':J_3') the junction it is inside."""
         if road.startswith(":"):
             return self.j_index.get(road[1:].rsplit("_", 1)[0], -1)
         return self.edge_junction.get(road, -1)
+
+
+def _centre_positions(net_path: str, net) -> dict:
+    """lane -> position along it (m) where a vehicle is at its junction's centre: on an approach lane its length plus
+    the straight distance from its end to the centre; on a lane inside a junction the point nearest the centre."""
+    out = {ln.getID(): ln.getLength() + float(np.hypot(*np.subtract(ln.getShape()[-1][:2], e.getToNode().getCoord()[:2])))
+           for e in net.getEdges() for ln in e.getLanes()}
+    inner = read_net(Path(net_path), internal=True)  # a separate read: with internal lanes sumolib orders the nodes differently
+    for e in inner.getEdges(withInternal=True):
+        junction = e.getID()[1:].rsplit("_", 1)[0]  # internal edges are ':<junction>_<n>'
+        if e.getFunction() == "internal" and inner.hasNode(junction):
+            centre = inner.getNode(junction).getCoord()[:2]
+            out |= {ln.getID(): polygonOffsetWithMinimumDistanceToPoint(centre, ln.getShape()) for ln in e.getLanes()}
+    return out
 
 
 @dataclass

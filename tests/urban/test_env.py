@@ -5,8 +5,8 @@ import pytest
 
 from models.urban.col_marl import EpisodeJob, RouteAgentsQ, numpy_params, run_episode
 from models.urban.env import GOAL_REWARD, UrbanParallelEnv, junction_terms, reward, safe_dist
-from models.urban.network import UrbanInputError
-from models.urban.sim import ScenarioFiles, Simulation, run_sumo_model
+from models.urban.network import UrbanInputError, read_net
+from models.urban.sim import NetIndex, ScenarioFiles, Simulation, run_sumo_model
 
 from models.urban.scenarios import vtypes_xml
 from urban_fixtures import crossing_copy, make_copy
@@ -40,11 +40,25 @@ def test_junction_terms_and_reward():
     road = np.array([0, 1, 0, 2])
     col, density = junction_terms(junction, road, np.array([100.0, 110.0, 130.0, 50.0]), np.array([10.0, 10.0, 10.0, 10.0]), np.array([4.0]))
     assert col.tolist() == [1.0, 1.0, 0.0, 0.0]
-    assert density.tolist() == [0.75, 0.75, 0.75, 0.0]
+    assert density.tolist() == [0.25, 0.25, 0.0, 0.0]  # vehicles it is predicted to collide with, per incoming lane (§4.2.1)
     r = reward("col", np.array([20.0, 20.0, 20.0, 20.0]), 40.0, np.array([-1.0, 10.0, -1.0, 10.0]), np.array([0.0, 0.0, 1.0, 1.0]))
     assert r == pytest.approx([0.5, -(0.2 + 0.5) * 2.0, -(5.0 + 0.5), -(0.4 + 0.5) * 2.0])  # Eq 4.4, 4.5, 4.6, 4.7
     assert reward("ind", np.array([20.0]), 40.0, np.array([10.0]), np.array([1.0])) == pytest.approx([-(1.0 + 0.5) * 10.0])
 
+
+
+def test_inter_dist_is_the_distance_to_the_junction_centre(sc1_net):
+    index = NetIndex(str(sc1_net))
+    centre = np.array(read_net(sc1_net).getNode("A0").getCoord())
+    end = np.array(read_net(sc1_net).getLane("left0A0_0").getShape()[-1])
+    length = index.lane_length["left0A0_0"]
+    # on the approach: the rest of the lane plus the lane end's distance to the centre (Eq 4.1), not the lane end
+    approach = index.centre_dist(["left0A0_0", "left0A0_0"], np.array([length - 50.0, length]))
+    np.testing.assert_allclose(approach, [50.0 + np.linalg.norm(end - centre), np.linalg.norm(end - centre)], rtol=1e-6)
+    assert 5.0 < approach[1] < 10.0
+    # inside the junction, straight on (:A0_10 from the left to the right): the centre is halfway; 0 once past it
+    inside = index.centre_dist([":A0_10_0"] * 3, np.array([0.0, 7.2, 12.0]))
+    np.testing.assert_allclose(inside, [7.2, 0.0, 0.0], atol=0.05)
 
 
 def test_speed_dependent_safe_dist():

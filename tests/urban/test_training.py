@@ -81,6 +81,26 @@ def test_stacked_q_is_the_tanh_network_and_chunked_gradients_equal_one_pass(monk
     assert np.isnan(losses[0][2]) and not grads[0]["w1"][2].any()
 
 
+def test_gradient_steps_in_threads_are_the_same_bit_for_bit(monkeypatch):
+    # the learner's threads run the chunks concurrently; weights and losses must not change by a bit (b = 2,097 is a
+    # batch size at which torch rounds differently when the chunks change, so the threads must keep them)
+    n, b = 6, 2097
+    monkeypatch.setattr(col_marl, "CHUNK_ROWS", 2 * b)  # 2 agents per chunk: 3 chunks
+    g = torch.Generator().manual_seed(0)
+    batch = (torch.rand(n, b, 6, generator=g), torch.randint(0, 5, (n, b), generator=g), torch.rand(n, b, generator=g),
+             torch.rand(n, b, 6, generator=g), torch.rand(n, b, 5, generator=g), torch.zeros(n, b), torch.tensor([True] * 5 + [False]))
+    out = []
+    for threads in (1, 2, 3):
+        net = RouteAgentsQ(n, 6, torch.Generator().manual_seed(0))
+        opt = torch.optim.Adam(net.parameters(), lr=1e-3)
+        losses = [dqn_update(net, opt, batch, threads) for _ in range(3)]
+        out.append((losses, [p.detach().clone() for p in net.parameters()]))
+    for losses, params in out[1:]:
+        np.testing.assert_array_equal(losses, out[0][0])
+        assert all(torch.equal(p, q) for p, q in zip(params, out[0][1]))
+    assert not torch.equal(out[0][1][0][0], RouteAgentsQ(n, 6, torch.Generator().manual_seed(0)).w1[0])  # it did learn
+
+
 def test_replay_buffers_keep_the_target_networks_q_of_every_next_state():
     gen = torch.Generator().manual_seed(0)
     target = RouteAgentsQ(3, 6, gen)

@@ -10,7 +10,7 @@ Algorithm 7 and the saved model, in that order. The equations, as in §6.4:
     w            = argmax_{w,t} t  s.t. wᵀμ(π_E) ≥ wᵀμ(π_j) + t for every policy j so far, ‖w‖₂ ≤ 1
                    (the max-margin QP of Abbeel & Ng 2004; a second-order cone program, solved by CLARABEL)
     DQN          : L(θ) = E[(Σ_{j<n} γʲ r_{t+j} + γⁿ (1 - done) max_a' Q_θ⁻(s_{t+n}, a') - Q_θ(s_t, a_t))²]   (n-step)
-                   r = c · (R_w(s') + r_aug(s') + γ Φ(s') - Φ(s))
+                   r = c · (R_w(s') + r_aug(s') + Φ(s') - Φ(s))
 
 r_aug is the reward augmentation of §6.5.2: a large bonus on reaching the destination, a large penalty on
 leaving the box or hitting the step limit. The environment is models.trajectory.heading_env (Eq 6.4).
@@ -18,15 +18,15 @@ leaving the box or hitting the step limit. The environment is models.trajectory.
 Additions beyond the thesis, each with a switch among the hyperparameters (docs/applearn.md says why and
 what each measured): φ gets a route feature φ_route(s) = exp(-d²/2σ²), d the distance to the experts'
 centroid route and σ the experts' RMS distance to it (Eq 6.2's centres lie ~50-100 km apart along the route
-with RBF widths to match, so φ_pos cannot tell a point 20 km off the route from one on it); potential-based
-shaping (Ng et al. 1999) with Φ(s) = -(distance to the goal along the route) / step, which leaves the
-optimal policy unchanged and pays every step's progress at once; n-step returns; a step reward ≤ 0; the wider
-fan of headings (heading_env.fit_geometry); the IRL step's policy with the best greedy success on the training
-flights is returned; and, in training only, an episode fails as soon as it leaves a corridor around the route
-or passes the goal.
+with RBF widths to match, so φ_pos cannot tell a point 20 km off the route from one on it); a progress reward
+Φ(s') - Φ(s), Φ(s) = -(distance to the goal along the route) / step (Ng et al.'s shaping without the γ on
+Φ(s'), see `progress_reward`), which pays every step's progress at once; n-step returns; a step reward ≤ 0;
+the wider fan of headings (heading_env.fit_geometry); the IRL step's policy with the best greedy success on
+the training flights is returned; and, in training only, a quarter of the episodes start along the route and
+an episode fails as soon as it leaves a corridor around the route or passes the goal.
 
 Choices the thesis leaves open or that deviate from it are commented at their parameters (gamma,
-failure_reward, reward_scale, feature_gamma, start_anywhere_fraction). The main deviation, on by default
+success_reward, failure_reward, reward_scale, feature_gamma, start_anywhere_fraction). The main deviation, on by default
 (`goal_offset_input`): the Q-network also sees the offset to the goal, scaled by the box size. φ alone
 locates the aircraft only to within one RBF width (~50 km), too coarse to aim at the 5 km goal disc; the
 reward and the IRL step still use φ only.
@@ -89,7 +89,9 @@ class AppLearnParams:
     transitions_per_update: int = 50  # one DQN update every 50 environment steps
     target_every_episodes: int = 5  # hard target-network update
     irl_every_episodes: int = 100  # a new w from the QP
-    success_reward: float = 100.0  # reward augmentation
+    # reward augmentation. 1000, not 100: with γ = 0.995 a bonus of 100 is worth 100·γ⁴⁰⁰ ≈ 13 at the start of
+    # a 400-step route, and near the goal it barely outweighed flying past the 5 km disc (docs/applearn.md)
+    success_reward: float = 1000.0
     # The penalty must outweigh the discounted sum of step rewards, dominated by the per-step cost w_bias
     # (|w_bias| ≤ ‖w‖ ≤ 1, so ≤ 1/(1-γ) = 200): with -100, leaving the box early was cheaper than flying on,
     # and the DQN learnt to do so (0 % success).
@@ -114,6 +116,17 @@ class AppLearnParams:
     nonpositive_reward: bool = True
     route_input: bool = True  # the Q-net also sees the signed offset from the route (tanh at 2σ) and the share of it left
     shaping: float = 1.0  # weight of the potential Φ (per step of route left); 0 = no shaping
+    # the shaping term is Φ(s') - Φ(s) (a reward for progress along the route) instead of Ng et al.'s
+    # γΦ(s') - Φ(s). The potential-based form leaves the optimal policy and hence its action gaps unchanged, and
+    # those vanish far from the goal (one more step of progress is worth ≈ (cost + (1-γ)·bonus)·γ^L, L steps to
+    # go: 0.24 of a reward unit 400 steps out), so the greedy policy zig-zagged between nearly opposite headings;
+    # it also paid (1-γ)|Φ| ≈ 2 per step for standing still far from the goal. Without the γ, progress pays 1 per
+    # step wherever it is made. Not policy-invariant: it favours following the route, which is the aim.
+    progress_reward: bool = True
+    # this share of the training episodes starts at a random point along the experts' route (σ to either side):
+    # expert points rarely lie near the goal (mode 0's tracks end anywhere over 200 km), so without them the
+    # failing runs never saw a success and never learnt the final approach (from 32 km out they missed the disc)
+    route_start_fraction: float = 0.25
     n_step: int = 10  # n of the n-step return; 1 = the one-step target of the thesis's DQN
     corridor_widths: float = 4.0  # training only: failure beyond this many σ from the route or past the goal; 0 = off
     # return the policy of the IRL step whose greedy roll-outs from the experts' first points (training flights)
@@ -207,6 +220,17 @@ class Route:
         p = np.stack([obs[:, 0] * self.lon_scale, obs[:, 1]], axis=1)
         last = self.points[-1] - self.points[-2]
         return (p - self.points[-1]) @ (last / np.linalg.norm(last).clip(1e-12)) * KM_PER_DEG
+
+    def sample(self, rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """n (lon, lat) points spread uniformly along the route, each moved sideways by N(0, σ)."""
+        seg = np.diff(self.points, axis=0)
+        length = np.linalg.norm(seg, axis=1)
+        at = rng.random(n) * length.sum()
+        k = np.searchsorted(np.cumsum(length), at).clip(0, len(seg) - 1)
+        t = (at - np.concatenate([[0.0], np.cumsum(length)[:-1]])[k]) / length[k].clip(1e-12)
+        normal = np.stack([-seg[k, 1], seg[k, 0]], axis=1) / length[k, None].clip(1e-12)
+        p = self.points[k] + t[:, None] * seg[k] + normal * rng.normal(0, self.width_km / KM_PER_DEG, n)[:, None]
+        return p[:, 0] / self.lon_scale, p[:, 1]
 
     @property
     def length_km(self) -> float:
@@ -404,10 +428,14 @@ def train_applearn(
     firsts, anywhere = StartStates.first_points(tracks), StartStates.all_points(tracks)
 
     def pick_starts(n: int) -> StartStates:
-        """n start states: a random expert's first point, or (start_anywhere_fraction) any expert point."""
-        mid = rng.random(n) < params.start_anywhere_fraction
-        chosen = StartStates.concat([firsts.take(rng.integers(0, len(firsts), n)), anywhere.take(rng.integers(0, len(anywhere), n))])
-        return chosen.take(np.where(mid, n + np.arange(n), np.arange(n)))
+        """n start states: a random expert's first point, or (start_anywhere_fraction) any expert point, or
+        (route_start_fraction) a point along the experts' route."""
+        u = rng.random(n)
+        lon, lat = route.sample(rng, n)
+        on_route = StartStates(lon, lat, altitude.predict(lon, lat), firsts.ts_us[rng.integers(0, len(firsts), n)])
+        chosen = StartStates.concat([firsts.take(rng.integers(0, len(firsts), n)), anywhere.take(rng.integers(0, len(anywhere), n)), on_route])
+        kind = np.where(u < params.route_start_fraction, 2, np.where(u < params.route_start_fraction + params.start_anywhere_fraction, 1, 0))
+        return chosen.take(kind * n + np.arange(n))
 
     memory = Replay(params.buffer_size, model.n_inputs, params.n_envs)
     obs = env.reset(pick_starts(params.n_envs))
@@ -528,7 +556,7 @@ def _dqn_update(model: AppLearnModel, target_net: QNetwork, optimiser, memory: R
     status = memory.status[rows]
     reward = memory.x2[rows, : model.features.size] @ model.w.astype(np.float32) - p.nonpositive_reward * model.w.clip(min=0).sum()
     reward += np.where(status == SUCCESS, p.success_reward, np.where(status != RUNNING, p.failure_reward, 0.0))
-    reward += p.gamma * memory.potential2[rows] - memory.potential[rows]
+    reward += (1.0 if p.progress_reward else p.gamma) * memory.potential2[rows] - memory.potential[rows]
     returns, bootstrap = n_step_returns(p.reward_scale * reward, status, p.gamma)
     with torch.no_grad():
         q_next = target_net(torch.from_numpy(memory.x2[rows[:, -1]])).max(dim=1).values

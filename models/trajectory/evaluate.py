@@ -149,6 +149,14 @@ def evaluate_model(setup: Setup, model: TrajectoryModel) -> Results:
     return res
 
 
+def evaluate_model_file(job: tuple) -> tuple[str, Results]:
+    """`evaluate_model(setup, TrajectoryModel.load(path))` for a worker process: (setup, path) -> (model name, results).
+    Roll-outs are deterministic (policy means, fixed mode selection), so the results do not depend on where it ran."""
+    setup, path = job
+    model = TrajectoryModel.load(path)
+    return model.config["name"], evaluate_model(setup, model)
+
+
 def evaluate_baselines(setup: Setup) -> Results:
     """constant_velocity and mode_mean, total and phase-wise (deterministic: reported as seed 0)."""
     tf, res, dt = test_flights(setup), Results(), setup.dt_s

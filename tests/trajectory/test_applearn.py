@@ -97,6 +97,10 @@ def test_route_offset_route_left_and_training_failures(trained):
     assert offset[:3] == pytest.approx([0.1 * KM_PER_DEG, -0.1 * KM_PER_DEG, 0.0], abs=1e-6)
     assert left[:3] == pytest.approx(np.array([0.5, 0.5, 0.75]) * lon_scale * KM_PER_DEG)
     assert route.beyond_goal_km(obs)[3] == pytest.approx(0.1 * lon_scale * KM_PER_DEG)
+    # training starts along the route (route_start_fraction): spread over its whole length, σ = 5 km to either side
+    lon, lat = route.sample(np.random.default_rng(0), 4000)
+    assert lon.min() < 20.05 and lon.max() > 20.95 and ((lon >= 20) & (lon <= 21)).all()
+    assert np.std(lat - 55.0) * KM_PER_DEG == pytest.approx(5.0, rel=0.05)
     # the fitted route: Φ rises towards the goal along it; off the corridor or past the goal is a training failure
     model, _ = trained
     r = model.route

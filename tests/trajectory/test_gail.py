@@ -10,7 +10,7 @@ from models.parallel import ProcessPool
 from models.trajectory.bc import train_bc, train_mode_classifier
 from models.trajectory.data import demonstrations
 from models.trajectory.env import DAY0_S
-from models.trajectory.evaluate import evaluate_model, growth_table, metrics_table
+from models.trajectory.evaluate import evaluate_model, evaluate_model_file, growth_table, metrics_table
 from models.trajectory.metrics import matched_errors
 from models.trajectory.model import TrajectoryModel, TrajectoryModelError, start_day
 from models.trajectory.nets import Policy, Selector
@@ -120,11 +120,13 @@ def test_same_seed_same_metrics(setup, tmp_path):
     here = train_model(setup[0], "sinfo_gail", "MMIL", 3, budget, "wgan_gp")[0]
     # again in a worker process, as the asset trains it (beside another bundle): the same model, the same metrics
     with ProcessPool(2, train_and_save) as pool:
-        row, _ = pool([(setup[0], "sinfo_gail", "MMIL", 3, budget, "wgan_gp", tmp_path, "demo"),
+        row, other_row = pool([(setup[0], "sinfo_gail", "MMIL", 3, budget, "wgan_gp", tmp_path, "demo"),
                        (setup[0], "triple_gail", "MMIL", 3, budget, "bce_gp", tmp_path, "demo")])
-    there = TrajectoryModel.load(row["path"])
-    runs = [metrics_table(evaluate_model(setup[0], m).errors) for m in (here, there)]
-    assert runs[0].equals(runs[1])
+    # and evaluated in worker processes, as trajectory_evaluation does: the same metrics as in this process
+    with ProcessPool(2, evaluate_model_file) as pool:
+        (name, there), (other, _) = pool([(setup[0], row["path"]), (setup[0], other_row["path"])])
+    assert (name, other) == ("sinfo_gail_wgan_gp_MMIL_seed3", "triple_gail_bce_gp_MMIL_seed3")
+    assert metrics_table(evaluate_model(setup[0], here).errors).equals(metrics_table(there.errors))
 
 
 def test_bad_model_files_give_one_line_errors(tmp_path):

@@ -11,8 +11,10 @@ learned schedules are mended here:
   flights the optimum leaves at 0). `trim` lowers each delayed flight to its least delay at which every
   one of its entries still fits its sector-hour's capacity.
 
-Both keep MaxDelay; `trim` never adds a hotspot, `repair` stops when no entry beyond capacity can move
-any more (a hotspot no push within MaxDelay resolves is left). They use the entries that can ever be hot within MaxDelay
+Both keep MaxDelay; `trim` never adds a hotspot. `repair` is a heuristic: it stops when no entry beyond
+capacity can move any more, and a push can drop a flight's other entries into full sector-hours, so it
+may leave (or even add) hotspots another schedule would avoid; `polish` therefore keeps the input, trimmed,
+when repairing does not leave fewer hotspots. They use the entries that can ever be hot within MaxDelay
 (`DCBProblem.relevant`), which decide every hotspot exactly.
 """
 
@@ -23,10 +25,17 @@ from models.dcb.problem import DCBProblem
 TRIM_PASSES = 5  # trimming one flight can free a slot for another; further passes rarely change anything
 
 
+def _check_range(problem: DCBProblem, delay_min: np.ndarray) -> None:
+    # the relevant entries are those that can be hot for delays within [0, MaxDelay]; outside it they miss some
+    if delay_min.size and not (delay_min.min() >= 0 and delay_min.max() <= problem.max_delay_min):
+        raise ValueError(f"delays must lie in [0, {problem.max_delay_min}] min, got {delay_min.min()}..{delay_min.max()}")
+
+
 def repair(problem: DCBProblem, delay_min: np.ndarray) -> np.ndarray:
     """Resolve the hotspots `delay_min` leaves by FCFS on top of it: in every hotspot the entries that cannot
     leave their hour within MaxDelay, then the earliest, keep their time; each later one is pushed just into
     the next hour (its flight takes the largest such push); repeated until nothing more can move."""
+    _check_range(problem, delay_min)
     e = problem.relevant_entries
     delay = delay_min.copy()
     cap = problem.capacity
@@ -47,10 +56,11 @@ def repair(problem: DCBProblem, delay_min: np.ndarray) -> np.ndarray:
 
 def trim(problem: DCBProblem, delay_min: np.ndarray) -> np.ndarray:
     """Lower every delayed flight, largest delay first, to its least delay at which each of its entries fits
-    its sector-hour (count ≤ capacity with the other flights where they are); passes until nothing changes.
+    its sector-hour (count ≤ capacity with the other flights where they are); passes until nothing changes (at most TRIM_PASSES).
 
     One flight at a time, as each move changes the counts the next one sees; the candidates of one flight
     (every delay below its own) are checked at once."""
+    _check_range(problem, delay_min)
     e = problem.relevant_entries
     delay = delay_min.copy()
     by_flight = np.argsort(e.flight, kind="stable")
@@ -77,8 +87,11 @@ def trim(problem: DCBProblem, delay_min: np.ndarray) -> np.ndarray:
 
 
 def polish(problem: DCBProblem, delay_min: np.ndarray) -> np.ndarray:
-    """`repair`, then `trim`."""
-    return trim(problem, repair(problem, delay_min))
+    """`repair`, then `trim`; or `trim` alone where that leaves fewer hotspots (or as many, with less delay):
+    never more hotspots than `delay_min` has."""
+    repaired, kept = trim(problem, repair(problem, delay_min)), trim(problem, delay_min)
+    score = lambda d: (problem.evaluate(d).hotspots, int(d.sum()))  # noqa: E731
+    return repaired if score(repaired) <= score(kept) else kept
 
 
 def readout_only(problem: DCBProblem) -> np.ndarray:

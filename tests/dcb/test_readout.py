@@ -91,3 +91,24 @@ def test_overload_reward_policy(small_case):
     r = train(small_case, "MIRL", seed=0, episodes=40, reward="overload", learning_rate=0.1)
     assert r.greedy_hotspots == 0 and r.greedy_delay_min <= 1.2 * 20
     assert thesis.greedy_delay_min > 5 * r.greedy_delay_min
+
+
+def test_polish_never_returns_more_hotspots_than_it_was_given():
+    """Repairing S1 10:00 FCFS pushes A (the last come) 10 min, which drops its S2/S3 entries into hours held by C and D
+    (they cannot leave: 40 min already): repair alone ends with 2 hotspots. polish keeps the input (1 hotspot) instead."""
+    rows = [
+        ("A", "S1", 650, 5), ("A", "S2", 655, 5), ("A", "S3", 658, 5), ("B", "S1", 610, 5),
+        ("C", "S2", 650, 5), ("C", "S4", 650, 5), ("E", "S4", 605, 5),
+        ("D", "S3", 650, 5), ("D", "S5", 650, 5), ("G", "S5", 605, 5),
+    ]
+    p = make_problem(rows, {s: 1 for s in ["S1", "S2", "S3", "S4", "S5"]})
+    given = delays(p, C=40, D=40)
+    hot = lambda d: p.evaluate(d, all_entries=True).hotspots  # noqa: E731
+    assert hot(given) == 1 and hot(repair(p, given)) == 2
+    assert hot(polish(p, given)) == 1
+
+
+def test_read_out_refuses_delays_outside_zero_to_max_delay():
+    p = make_problem(HAND_BUILT, {"A": 2, "B": 1})
+    with pytest.raises(ValueError, match="delays must lie in"):
+        repair(p, np.full(p.n_flights, p.max_delay_min + 1))

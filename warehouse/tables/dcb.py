@@ -6,7 +6,7 @@ from warehouse.table import TS, Table, col
 
 _CASE = col("case", pa.string(), "", "evaluation case, e.g. cap90 = every sector at 90 % of its base capacity")
 _METHOD = col("method", pa.string(), "", "MIRL, CMARL, HCMARL, stHMIRL, sHMIRL, tHMIRL (learners), optimum (integer program), FCFS or readout_only (the learners' read-out of zero delays)")
-_SEED = col("seed", pa.int64(), "", "training seed (0 for the deterministic optimum and FCFS)")
+_SEED = col("seed", pa.int64(), "", "training seed (0 for the deterministic optimum, FCFS and readout_only)")
 _FLIGHT = col("flight_id", pa.string(), "", "flight key (foundation ingest's callsign_icao24_start, or the SO6 flight key)")
 _SECTOR = col("sector", pa.string(), "", "sector name (grid: R<row>C<col>_FL<lower>-<upper>)")
 _DELAY = col("delay_min", pa.int64(), "min", "ground delay given to the flight (whole minutes; shifts its whole schedule)")

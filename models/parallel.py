@@ -8,8 +8,14 @@ seed its own randomness, so results do not depend on the number of workers.
 """
 
 import multiprocessing
+import os
 from collections.abc import Iterator
 from concurrent.futures import ProcessPoolExecutor
+
+
+def usable_cores() -> int:
+    """Cores this process may run on (the default number of workers)."""
+    return len(os.sched_getaffinity(0))
 
 
 def _init_worker():

@@ -3,7 +3,6 @@
 tracks_20s, trajectory_modes, weather -> applearn_models (catalogue + model files), applearn_results
 """
 
-import os
 import time
 
 import dagster as dg
@@ -41,7 +40,7 @@ def applearn_experiments(context: dg.AssetExecutionContext, config: AppLearnConf
     import torch
 
     from models.trajectory.applearn import demo_or_paper
-    from models.parallel import ProcessPool
+    from models.parallel import ProcessPool, usable_cores
     from models.trajectory.applearn_eval import datasets, run_partition_job, table_6_1
     from models.markdown import markdown_table
     from warehouse.artifacts import artifact_path, write_bytes_atomic
@@ -57,7 +56,7 @@ def applearn_experiments(context: dg.AssetExecutionContext, config: AppLearnConf
     models, results, t0 = [], [], time.perf_counter()
     jobs = [(sets[name], weather, partition, seed, params) for name, partition, seed in todo]
     # each run trains on one thread: the runs share the cores as parallel processes
-    with ProcessPool(config.workers or len(os.sched_getaffinity(0)), run_partition_job) as pool:
+    with ProcessPool(config.workers or usable_cores(), run_partition_job) as pool:
         for k, ((name, partition, seed), (model_bytes, row, res)) in enumerate(zip(todo, pool.iter(jobs)), 1):
             path = write_bytes_atomic(artifact_path("models/applearn", f"{name.replace('/', '_mode')}_{partition}_seed{seed}.pt"), model_bytes)
             models.append({"dataset": name, **row, "profile": config.profile, "path": str(path)})

@@ -3,7 +3,6 @@
 trajectory_models -> trajectory_predictions, trajectory_metrics, trajectory_error_growth, mode_posteriors
 """
 
-import os
 import time
 
 import dagster as dg
@@ -33,7 +32,7 @@ def trajectory_evaluation(context: dg.AssetExecutionContext, config: TrajectoryE
     import torch
 
     from models.markdown import markdown_table
-    from models.parallel import ProcessPool
+    from models.parallel import ProcessPool, usable_cores
     from models.trajectory.evaluate import (evaluate_baselines, evaluate_model_file, growth_table, metrics_table,
                                             posterior_table, predictions_table)
     from models.trajectory.training import prepare
@@ -44,7 +43,7 @@ def trajectory_evaluation(context: dg.AssetExecutionContext, config: TrajectoryE
     res = evaluate_baselines(setup)
     n_test = len(setup.demos["all"][1].points)
     # each model is evaluated on one thread: the models share the cores as parallel processes, results in catalogue order
-    with ProcessPool(config.workers or len(os.sched_getaffinity(0)), evaluate_model_file) as pool:
+    with ProcessPool(config.workers or usable_cores(), evaluate_model_file) as pool:
         for k, (name, model_res) in enumerate(pool.iter([(setup, path) for path in trajectory_models["path"]]), 1):
             res.extend(model_res)
             context.log.info(f"[{k}/{trajectory_models.height}] evaluated {name} on {n_test} test flights")

@@ -3,7 +3,6 @@
 tracks_20s, trajectory_modes, flights, flight_splits, weather -> trajectory_models (catalogue + model files)
 """
 
-import os
 import time
 
 import dagster as dg
@@ -42,7 +41,7 @@ def trajectory_models(context: dg.AssetExecutionContext, config: TrajectoryModel
 
     from models.trajectory.ppo import DISCRIMINATORS
     from models.markdown import markdown_table
-    from models.parallel import ProcessPool
+    from models.parallel import ProcessPool, usable_cores
     from models.trajectory.training import Budget, prepare, runs, train_and_save
 
     torch.set_num_threads(1)  # small nets; with 2 threads on a busy 2-core machine OpenMP contention made training ~10x slower
@@ -57,7 +56,7 @@ def trajectory_models(context: dg.AssetExecutionContext, config: TrajectoryModel
     budget = Budget(p["bc_epochs"], p["gail_iterations"])
     jobs = [(setup, algorithm, scheme, seed, budget, disc, folder, config.profile) for algorithm, scheme, seed, disc in todo]
     # each bundle trains on one thread: the bundles share the cores as parallel processes
-    with ProcessPool(config.workers or len(os.sched_getaffinity(0)), train_and_save) as pool:
+    with ProcessPool(config.workers or usable_cores(), train_and_save) as pool:
         for k, row in enumerate(pool.iter(jobs), 1):
             rows.append(row)
             context.log.info(f"[{k}/{len(todo)}] {row['name']}: {row['train_s']:.1f} s, final BC loss {row['final_bc_loss']:.3f}")

@@ -7,7 +7,8 @@ import polars as pl
 from pydantic import Field
 
 from assets.profiles import default_profile
-from assets.urban.training import default_workers, load_policies
+from assets.urban.training import load_policies
+from models.parallel import usable_cores
 from models.markdown import markdown_table
 from models.urban.experiments import run_job
 from warehouse.artifacts import artifact_path, save_plot
@@ -36,7 +37,7 @@ def urban_results(context: dg.AssetExecutionContext, config: EvaluationConfig, u
     from models.urban.experiments import evaluation_jobs, results_rows
 
     jobs = evaluation_jobs(urban_scenarios, load_policies(urban_training), config.methods)
-    df = results_rows(*_run(context, jobs, config.workers or default_workers()))
+    df = results_rows(*_run(context, jobs, config.workers or usable_cores()))
     summary = df.group_by("scenario", "method", maintain_order=True).agg(
         pl.len().alias("runs"), pl.col("avg_travel_time_s").mean(), pl.col("avg_speed_mps").mean(),
         pl.col("collisions").sum(), pl.col("teleports").sum(), pl.col("success").mean())
@@ -59,7 +60,7 @@ def urban_trajectories(context: dg.AssetExecutionContext, config: EvaluationConf
     from models.urban.recording import write_episode_recording
 
     jobs = evaluation_jobs(urban_scenarios, load_policies(urban_training), config.methods, record_copy=0)
-    df = trajectories_rows(*_run(context, jobs, config.workers or default_workers()))
+    df = trajectories_rows(*_run(context, jobs, config.workers or usable_cores()))
     metadata = {}
     for (scenario,), g in df.group_by("scenario", maintain_order=True):
         network = urban_scenarios.filter(pl.col("scenario") == scenario)["network"][0]

@@ -1,6 +1,5 @@
 """Training of the route agents: col-MARL and the i-MARL ablation on every trained scenario."""
 
-import os
 import time
 
 import dagster as dg
@@ -17,10 +16,6 @@ from warehouse.artifacts import artifact_path
 # the real-network tables 4.4-4.9 are col-MARL vs IDM), and ch3's CNN gradient steps cost several times col-MARL's.
 PROFILE = {"demo": {"episodes": 50, "seeds": [0], "method_scenarios": {"ch3_dqn_cnn": ["sc1"], "i_marl": ["sc1"]}},
            "paper": {"episodes": 15000, "seeds": list(range(10)), "method_scenarios": {}}}
-
-
-def default_workers() -> int:
-    return len(os.sched_getaffinity(0))
 
 
 class TrainingConfig(dg.Config):
@@ -49,7 +44,7 @@ def urban_training(context: dg.AssetExecutionContext, config: TrainingConfig, ur
 
     from models.urban import col_marl
     from models.urban.experiments import METHODS_RL, files_of, route_agents
-    from models.parallel import ProcessPool
+    from models.parallel import ProcessPool, usable_cores
 
     torch.set_num_threads(1)
     prof = PROFILE[config.profile]
@@ -57,7 +52,7 @@ def urban_training(context: dg.AssetExecutionContext, config: TrainingConfig, ur
     only_on = config.method_scenarios if config.method_scenarios is not None else prof["method_scenarios"]
     train = urban_scenarios.filter(pl.col("role") == "train")
     frames, timings, learner_cpu = [], {}, {}  # learner CPU: this process (gradient steps), whatever the machine's load
-    with ProcessPool(config.workers or default_workers(), col_marl.run_episode) as pool:
+    with ProcessPool(config.workers or usable_cores(), col_marl.run_episode) as pool:
         for (scenario,), g in train.group_by("scenario", maintain_order=True):
             copies = [(files_of(r), r["n_vehicles"]) for r in g.iter_rows(named=True)]
             agents = route_agents(urban_routes, g["network"][0])
@@ -83,7 +78,7 @@ def urban_training(context: dg.AssetExecutionContext, config: TrainingConfig, ur
     context.log.info(f"trained {len(timings)} policy sets in {sum(timings.values()):.0f} s: {timings}")
     return dg.Output(df, metadata={"train_seconds": dg.MetadataValue.json(timings), "learner_cpu_seconds": dg.MetadataValue.json(learner_cpu),
                                    "episodes": episodes, "leader_guard": config.leader_guard,
-                                   "final_returns": dg.MetadataValue.json(last.to_dicts()), "workers": config.workers or default_workers()})
+                                   "final_returns": dg.MetadataValue.json(last.to_dicts()), "workers": config.workers or usable_cores()})
 
 
 def load_policies(training: pl.DataFrame) -> dict:

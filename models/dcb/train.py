@@ -189,7 +189,7 @@ def train(problem: DCBProblem, method: str, seed: int, episodes: int = EPISODES,
     if readout == "repair":
         candidates = {k: polish(problem, d) for k, d in candidates.items()}
     # fewest hotspots, then least delay; ties keep the greedy rollout (dicts keep their order, min the first)
-    source = min(candidates, key=lambda k: (problem.evaluate(candidates[k]).hotspots, candidates[k].sum()))
-    delay = candidates[source]
-    hot = problem.evaluate(delay).hotspots
+    score = {k: (problem.evaluate(d).hotspots, d.sum()) for k, d in candidates.items()}
+    source = min(score, key=score.get)
+    delay, (hot, _) = candidates[source], score[source]
     return TrainResult(delay, int(hot), time.perf_counter() - started, episodes * len(levels), np.asarray(curve), source, *greedy)

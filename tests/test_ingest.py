@@ -187,3 +187,11 @@ def test_flights_shorter_than_the_heading_window(tmp_path, small_raw):
     flights = flights_table(short)
     assert flights.height == tracks["flight_id"].n_unique()
     assert (flights["n_points"] == 7).all()
+
+
+def test_every_row_rejected_gives_empty_tracks(tmp_path, small_raw):
+    """A file whose rows all fail the first stage (no aircraft address) ends with no track, every row quarantined."""
+    no_address = small_raw.with_columns(icao24=pl.lit(None, pl.String))
+    tracks, rejects, _ = ingest(_write(no_address, tmp_path / "anonymous.parquet"))
+    assert tracks.height == 0 and rejects.height == no_address.height
+    assert set(rejects["reason"]) == {"missing_value"}

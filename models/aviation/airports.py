@@ -109,33 +109,24 @@ def _distance_nm(lat1, lon1, lat2, lon2):
 
 def flights_table(tracks: pl.DataFrame) -> pl.DataFrame:
     """One row per flight with origin/destination (and the distance to them) from its end points."""
-    ends = (
-        in_flight_order(tracks)
-        # grouped by the run of each flight (contiguous rows): an integer key, cheaper than hashing the ids
-        .group_by(pl.col("flight_id").rle_id().alias("_run"), maintain_order=True)
-        .agg(
-            pl.col("flight_id").first(),
-            pl.col("callsign").first(),
-            pl.col("icao24").first(),
-            first_ts=pl.col("ts").first(),
-            last_ts=pl.col("ts").last(),
-            n_points=pl.len().cast(pl.Int64),
-            lat0=pl.col("lat").first(),
-            lon0=pl.col("lon").first(),
-            alt0=pl.col("alt_m").first(),
-            # heading from the positions themselves (10 points in; none on shorter flights): reported track
-            # can be missing at the ends
-            lat1=pl.col("lat").get(10, null_on_oob=True),
-            lon1=pl.col("lon").get(10, null_on_oob=True),
-            latn=pl.col("lat").last(),
-            lonn=pl.col("lon").last(),
-            altn=pl.col("alt_m").last(),
-            latm=pl.col("lat").get(-11, null_on_oob=True),
-            lonm=pl.col("lon").get(-11, null_on_oob=True),
-        )
-        .drop("_run")
+    src = in_flight_order(tracks)
+    # flights are contiguous runs of rows: their end points are gathered by position, no grouping needed
+    run = src["flight_id"].rle_id().to_numpy()
+    start = np.flatnonzero(np.r_[True, run[1:] != run[:-1]]) if len(run) else np.zeros(0, dtype=np.int64)
+    end = np.r_[start[1:], len(run)][: len(start)] - 1
+    lat, lon, alt = (src[c].to_numpy() for c in ("lat", "lon", "alt_m"))
+    ends = src.select("flight_id", "callsign", "icao24", first_ts="ts")[start].with_columns(
+        last_ts=src["ts"].gather(end), n_points=pl.Series(end - start + 1, dtype=pl.Int64),
+        lat0=pl.Series(lat[start]), lon0=pl.Series(lon[start]), latn=pl.Series(lat[end]), lonn=pl.Series(lon[end]),
     )
-    e = {c: ends[c].to_numpy() for c in ends.columns}
+    # heading from the positions themselves (10 points in; none on shorter flights): reported track can be
+    # missing at the ends
+    long = end - start >= 10
+    inner = lambda pos, values: np.where(long, values[np.where(long, pos, 0)], np.nan)  # noqa: E731
+    e = {
+        "lat0": lat[start], "lon0": lon[start], "alt0": alt[start], "latn": lat[end], "lonn": lon[end], "altn": alt[end],
+        "lat1": inner(start + 10, lat), "lon1": inner(start + 10, lon), "latm": inner(end - 10, lat), "lonm": inner(end - 10, lon),
+    }
     back = _bearing_deg(e["lat1"], e["lon1"], e["lat0"], e["lon0"])  # looking back from the first point
     ahead = _bearing_deg(e["latm"], e["lonm"], e["latn"], e["lonn"])
     origin, _ = best_airport(e["lat0"], e["lon0"], e["alt0"], back)

@@ -21,6 +21,7 @@ FT = 0.3048
 KT = 1852.0 / 3600.0
 FPM = FT / 60.0
 UNIT_SAMPLE_ROWS = 50_000
+EARTH_RADIUS_M = 6_371_000.0
 TS_DTYPE = pl.Datetime("us", "UTC")
 
 
@@ -79,7 +80,7 @@ TRAFFIC = Schema(
 )
 SCHEMAS = (OPENSKY, TRAFFIC)
 CANONICAL = list(OPENSKY.columns)
-TRACK_COLUMNS = ("row_index", "_ac", "ts", "lat", "lon", "alt_m")  # what the slim frame passes on to the tracks
+SPLIT_COLUMNS = ("row_index", "_ac", "ts")  # what the slim frame passes on to the flight split
 
 
 @dataclass(frozen=True)
@@ -179,17 +180,30 @@ def _timestamps(col: pl.Series, source: str) -> pl.Series:
     raise IngestError(f"{source}: column '{col.name}' has type {col.dtype}, expected timestamps")
 
 
-def _tidy_names(names: pl.Series, lower: bool) -> pl.Series:
-    """Strip (and lowercase) names, "" -> null (a blank icao24 is a missing one). Done on the distinct values (a few thousand aircraft among
-    millions of rows, ~5x cheaper), and not at all when they are already tidy."""
-    distinct = names.unique().drop_nulls()
+def _tidy_names(names: pl.Series, lower: bool) -> tuple[pl.Series, pl.Series]:
+    """(names stripped (and lowercased), "" -> null (a blank icao24 is a missing one); a UInt32 code per row
+    that sorts like the tidy name, null where it is null).
+
+    Both come from the distinct names of the runs of equal rows: state vectors arrive in runs of one aircraft
+    (the bundled file: 528,432 rows, 265 runs), and hashing a few hundred run values instead of every row is
+    ~10x cheaper; the rows then only gather from the runs."""
+    run = names.rle_id()
+    r = run.to_numpy()
+    values = names.gather(np.flatnonzero(np.r_[True, r[1:] != r[:-1]]))
+    distinct = values.unique().drop_nulls()
     tidy = distinct.str.strip_chars()
     tidy = (tidy.str.to_lowercase() if lower else tidy).replace("", None)
-    return names if tidy.equals(distinct) else names.replace_strict(distinct, tidy, default=None)
+    # codes in sorted order of the tidy names: an integer key that orders (and groups) like the strings
+    code = tidy.cast(pl.Enum(tidy.drop_nulls().unique().sort())).to_physical().cast(pl.UInt32)
+    run_code = values.replace_strict(distinct, code, default=None, return_dtype=pl.UInt32)
+    if not tidy.equals(distinct):
+        names = values.replace_strict(distinct, tidy, default=None).gather(run)
+    return names, run_code.gather(run)
 
 
 def normalise(df: pl.DataFrame, source: str) -> pl.DataFrame:
-    """Rename to canonical columns, convert to SI units, add row_index. Raises IngestError on wrong units."""
+    """Rename to canonical columns, convert to SI units, add row_index and the integer codes of the names
+    (`_ac` aircraft, `_cs` callsign: they sort like icao24 / callsign). Raises IngestError on wrong units."""
     schema = detect_schema(df.columns, source)
     # timestamps are parsed and checked eagerly; the other columns are one select, which polars runs in parallel
     exprs = [pl.int_range(pl.len(), dtype=pl.Int64).alias("row_index")]
@@ -197,12 +211,16 @@ def normalise(df: pl.DataFrame, source: str) -> pl.DataFrame:
         if col not in df.columns:
             dtype = {"callsign": pl.String, "onground": pl.Boolean}.get(canon, pl.Float64)
             exprs.append(pl.lit(None, dtype=dtype).alias(canon))
+            if canon == "callsign":
+                exprs.append(pl.lit(None, dtype=pl.UInt32).alias("_cs"))
             continue
         e = pl.col(col)
         if canon == "ts":
             e = pl.lit(_timestamps(df[col], source))
         elif canon in ("icao24", "callsign"):
-            e = pl.lit(_tidy_names(df[col].cast(pl.String), lower=canon == "icao24"))
+            names, codes = _tidy_names(df[col].cast(pl.String), lower=canon == "icao24")
+            e = pl.lit(names)
+            exprs.append(pl.lit(codes).alias("_ac" if canon == "icao24" else "_cs"))
         elif canon == "onground":
             e = e.cast(pl.Boolean, strict=False)
         elif canon == "pos_time":  # epoch seconds as they come, else timestamps: both to epoch µs
@@ -250,12 +268,11 @@ def check_units(df: pl.DataFrame, schema: Schema, source: str) -> None:
 # --------------------------------------------------------------------------------------------- cleaning
 
 
-def _leg_m(lat1, lon1, lat2, lon2) -> pl.Expr:
+def _leg_m(lat1: np.ndarray, lon1: np.ndarray, lat2: np.ndarray, lon2: np.ndarray) -> np.ndarray:
     """Equirectangular distance: within 0.5 % of great-circle for legs under 500 km, at a third of
     haversine's cost, which is plenty for an impossible-speed test."""
-    r = 6_371_000.0
-    dlon = ((lon2 - lon1 + 180.0) % 360.0 - 180.0).radians() * ((lat1 + lat2) / 2).radians().cos()
-    return r * ((lat2 - lat1).radians() ** 2 + dlon**2).sqrt()
+    dlon = np.radians((lon2 - lon1 + 180.0) % 360.0 - 180.0) * np.cos(np.radians((lat1 + lat2) / 2))
+    return EARTH_RADIUS_M * np.sqrt(np.radians(lat2 - lat1) ** 2 + dlon**2)
 
 
 def _prev(c: str) -> pl.Expr:
@@ -265,23 +282,43 @@ def _prev(c: str) -> pl.Expr:
     return pl.when(pl.col("_ac") == pl.col("_ac").shift(1)).then(pl.col(c).shift(1))
 
 
-def _speed_spike(cfg: IngestConfig) -> pl.Expr:
-    """An isolated point the aircraft could not have reached and left again (both legs impossible).
+@dataclass(frozen=True)
+class SpeedSpike:
+    """Rule: an isolated point the aircraft could not have reached and left again (both legs impossible).
 
-    Each leg is computed once, as the leg from the previous row, and only counts within one aircraft; the
-    leg to the next point is the next row's."""
-    same = (pl.col("_ac") == pl.col("_ac").shift(1)).fill_null(False)
-    # 1 s floor on dt: OpenSky timestamps are whole seconds, a 0 s step would make every move "infinite"
-    dt_in = ((pl.col("ts") - pl.col("ts").shift(1)).dt.total_microseconds() / 1e6).clip(lower_bound=1.0)
-    leg_in = _leg_m(pl.col("lat").shift(1), pl.col("lon").shift(1), pl.col("lat"), pl.col("lon"))
-    too_fast = same & (leg_in / dt_in > cfg.max_speed_mps)
-    too_steep = same & ((pl.col("alt_m") - pl.col("alt_m").shift(1)).abs() / dt_in > cfg.max_climb_mps)
-    spike = lambda leg: (leg & leg.shift(-1)).fill_null(False)  # noqa: E731
-    return spike(too_fast) | spike(too_steep)
+    Computed on numpy arrays rather than as an expression, so that the trigonometry runs only for the few
+    legs that a cheap bound cannot clear. Each leg is computed once, as the leg from the previous row, and
+    only counts within one aircraft; the leg to the next point is the next row's."""
+
+    max_speed_mps: float
+    max_climb_mps: float
+    columns = ("_ac", "ts", "lat", "lon", "alt_m")
+
+    def __call__(self, rows: pl.DataFrame) -> np.ndarray:
+        if rows.height < 3:
+            return np.zeros(rows.height, dtype=bool)
+        ac, lat, lon, alt = (rows[c].to_numpy() for c in ("_ac", "lat", "lon", "alt_m"))
+        same = ac[1:] == ac[:-1]
+        # 1 s floor on dt: OpenSky timestamps are whole seconds, a 0 s step would make every move "infinite"
+        dt = np.maximum(np.diff(rows["ts"].dt.epoch("us").to_numpy()) / 1e6, 1.0)
+        steep = same & (np.abs(np.diff(alt)) > self.max_climb_mps * dt)
+        # A cheap bound clears nearly every leg: with cos x <= 1 - x²/2 + x⁴/24 (0.2 % high at 60°) in place of
+        # the cosine a leg only gets longer, so a leg possible under it is possible; the few others get the
+        # exact distance with its trigonometry.
+        dlon = np.abs(np.diff(lon))
+        dlon = np.minimum(dlon, 360.0 - dlon)  # the shorter way round
+        x2 = (lat[1:] + lat[:-1]) ** 2 * (np.pi / 360) ** 2  # (mean latitude in radians)²
+        dlon *= 1 - x2 * (0.5 - x2 / 24)
+        reach_deg = dt * np.degrees(self.max_speed_mps / EARTH_RADIUS_M)
+        fast = same & (np.diff(lat) ** 2 + dlon**2 > reach_deg**2 * (1 - 1e-9))
+        i = np.flatnonzero(fast)
+        fast[i] = _leg_m(lat[i], lon[i], lat[i + 1], lon[i + 1]) / dt[i] > self.max_speed_mps
+        both = lambda leg: leg[:-1] & leg[1:]  # noqa: E731  (the leg in and the leg out of a row)
+        return np.r_[False, both(fast) | both(steep), False]
 
 
-def _row_rules(cfg: IngestConfig) -> list[list[tuple[str, pl.Expr]]]:
-    """Stages of (reason, expression true for rows to reject). Within a stage the first matching reason
+def _row_rules(cfg: IngestConfig) -> list[list[tuple[str, pl.Expr | SpeedSpike]]]:
+    """Stages of (reason, expression (or SpeedSpike) true for rows to reject). Within a stage the first matching reason
     wins and all rules see the same rows; a stage sees only the rows the previous stages kept. The first
     stage must test each row alone (it runs before the rows are sorted).
 
@@ -310,111 +347,139 @@ def _row_rules(cfg: IngestConfig) -> list[list[tuple[str, pl.Expr]]]:
                 .fill_null(False),
             )
         ],
-        [("speed_spike", _speed_spike(cfg))],
+        [("speed_spike", SpeedSpike(cfg.max_speed_mps, cfg.max_climb_mps))],
     ]
 
 
-def _split_flights(kept: pl.DataFrame, icao24: pl.Series, cfg: IngestConfig) -> tuple[pl.DataFrame, pl.DataFrame]:
-    """Number the flights (a new one at an aircraft's first point, after a long gap or a callsign change)
-    and name them callsign_icao24_YYYYMMDDTHHMM from their first point; names are built once per flight.
+def _first_match(frame: pl.DataFrame, stage: list[tuple[str, pl.Expr | SpeedSpike]]) -> np.ndarray:
+    """Per row of `frame`: 0, or 1 + the number of the first rule of the stage that matches it."""
+    rules = [pl.lit(pl.Series(rule(frame))) if isinstance(rule, SpeedSpike) else rule for _, rule in stage]
+    # the rule as a small integer: a string per row would cost more than the rules themselves
+    first = pl.coalesce(pl.when(rule).then(pl.lit(j + 1, pl.UInt8)) for j, rule in enumerate(rules)).fill_null(0)
+    return frame.select(first).to_series().to_numpy()
 
-    Returns (kept with `segment`, 0-based flight number, and the callsign filled forward per aircraft;
-    one row per flight: flight_id, flight_rank = rank of the name, points). `icao24` is the raw column."""
-    if kept["callsign"].null_count():  # a window per aircraft, only when some callsign is missing
-        kept = kept.with_columns(pl.col("callsign").fill_null(strategy="forward").over("_ac"))
-    gap = (pl.col("ts") - _prev("ts")).dt.total_seconds(fractional=True)
-    callsign_changed = (pl.col("callsign") != _prev("callsign")).fill_null(False)
-    new = gap.is_null() | (gap > cfg.gap_split_s) | callsign_changed
-    kept = kept.with_columns(_new=new).with_columns(segment=pl.col("_new").cum_sum() - 1)
-    firsts = kept.filter("_new")
-    first_icao24 = icao24.gather(firsts["row_index"])
-    flights = firsts.select(
-        flight_id=pl.concat_str(
-            pl.col("callsign").fill_null(first_icao24), pl.lit(first_icao24), pl.col("ts").dt.strftime("%Y%m%dT%H%M"), separator="_"
-        ),
-        points=pl.Series(np.bincount(kept["segment"].to_numpy(), minlength=firsts.height), dtype=pl.Int64),
+
+def _split_flights(kept: pl.DataFrame, raw: pl.DataFrame, cfg: IngestConfig) -> tuple[np.ndarray, pl.Series, pl.DataFrame]:
+    """Number the flights of the kept rows (in (aircraft, ts) order): a new one at an aircraft's first point,
+    after a long gap or a callsign change; name them callsign_icao24_YYYYMMDDTHHMM from their first point
+    (names are built once per flight).
+
+    Returns (per kept row: its flight number and the raw row whose callsign it takes: its own or, where it
+    has none, the aircraft's last one before it; one row per flight: flight_id, flight_rank = rank of the
+    name, points)."""
+    row = kept["row_index"].to_numpy()
+    code = raw["_cs"].gather(kept["row_index"])
+    callsign_row = kept["row_index"]
+    if code.null_count():  # a window per aircraft, only when some callsign is missing
+        filled = kept.select(
+            "_ac", _row=pl.when(code.is_not_null()).then("row_index"), _cs=code
+        ).select(pl.col("_row", "_cs").fill_null(strategy="forward").over("_ac"))
+        callsign_row, code = filled["_row"], filled["_cs"]  # _row: null until the aircraft's first callsign
+    ac, ts = kept["_ac"].to_numpy(), kept["ts"].dt.epoch("us").to_numpy()
+    known = code.is_not_null().to_numpy()
+    code = code.fill_null(0).to_numpy()
+    # a change between two known callsigns of the same aircraft (codes: cheaper than comparing strings)
+    renamed = known[1:] & known[:-1] & (code[1:] != code[:-1])
+    # [: len(row)]: no flight at all when every row was rejected
+    new = np.r_[True, (ac[1:] != ac[:-1]) | (np.diff(ts) / 1e6 > cfg.gap_split_s) | renamed][: len(row)]
+    segment = np.cumsum(new) - 1
+    first = np.flatnonzero(new)
+    firsts = pl.DataFrame(
+        {"callsign": raw["callsign"].gather(callsign_row.gather(first)), "icao24": raw["icao24"].gather(row[first]), "ts": kept["ts"].gather(first)}
     )
-    # the rank of the name lets the final sort by (flight_id, ts) compare integers instead of strings
-    return kept.drop("_new"), flights.with_columns(flight_rank=pl.col("flight_id").rank("dense"))
+    flights = firsts.select(
+        flight_id=pl.concat_str(pl.col("callsign").fill_null(pl.col("icao24")), "icao24", pl.col("ts").dt.strftime("%Y%m%dT%H%M"), separator="_"),
+        points=pl.Series(np.diff(np.r_[first, len(row)])),
+    )
+    # the rank of the name orders the flights by (flight_id, ts) comparing integers instead of strings
+    return segment, callsign_row, flights.with_columns(flight_rank=pl.col("flight_id").rank("dense"))
 
 
-def _aircraft_ids(icao24: pl.Series) -> pl.Series:
-    """An integer per aircraft that sorts like icao24: the 24-bit address itself when every value is six hex
-    digits (as ICAO addresses are), else the dense rank of the string (sorting strings costs 2-3x more)."""
-    hex_id = icao24.str.to_integer(base=16, strict=False)
-    six_digits = (icao24.str.len_bytes() == 6) & ~icao24.str.starts_with("+") & ~icao24.str.starts_with("-")
-    if hex_id.null_count() == icao24.null_count() and six_digits.all(ignore_nulls=True):
-        return hex_id.alias("_ac")
-    return icao24.rank("dense").cast(pl.Int64).alias("_ac")
+def _runs(first: np.ndarray, length: np.ndarray) -> np.ndarray:
+    """Row positions of the runs [first, first + length), one after the other."""
+    return np.repeat(first - (np.cumsum(length) - length), length) + np.arange(length.sum())
 
 
 def _aircraft_time_order(rows: pl.DataFrame, among: np.ndarray) -> np.ndarray:
-    """Positions of the rows `among` (no null ts or aircraft) in (aircraft, ts, row_index) order: two stable
-    numpy sorts of integer keys (timsort finds the runs of a presorted file) and no column moved until the
-    one gather, ~2x cheaper than polars sorting the frame."""
-    ts = rows["ts"].dt.epoch("us").to_numpy()[among]
+    """Positions of the rows `among` (no null ts or aircraft) in (aircraft, ts, row_index) order, by stable
+    numpy sorts of integer keys (timsort merges the runs of a file written aircraft by aircraft) and no column
+    moved until the one gather, ~2x cheaper than polars sorting the frame."""
+    ac = rows["_ac"].gather(among).to_numpy().astype(np.int64)
+    ts = rows["ts"].dt.epoch("us").gather(among).to_numpy()
+    if not len(ts):
+        return among
+    ts = ts - ts.min()
+    if int(ac.max()).bit_length() + int(ts.max()).bit_length() <= 62:  # both in one int64 key: one sort
+        return among[np.argsort((ac << int(ts.max()).bit_length()) | ts, kind="stable")]
     order = np.argsort(ts, kind="stable")
-    order = order[np.argsort(rows["_ac"].to_numpy()[among][order], kind="stable")]
-    return among[order]
+    return among[order[np.argsort(ac[order], kind="stable")]]
 
 
-def _tested(stage: list[tuple[str, pl.Expr]]) -> set[str]:
+def _tested(stage: list[tuple[str, pl.Expr | SpeedSpike]]) -> set[str]:
     """Columns the rules of a stage read."""
-    return {c for _, rule in stage for c in rule.meta.root_names()}
-
-
-def _first_match(frame: pl.DataFrame, stage: list[tuple[str, pl.Expr]]) -> tuple[pl.Series, pl.DataFrame]:
-    """(rows hit by a rule of the stage, their row_index and reason: the first rule that matches)."""
-    # the rule as a small integer: a string per row would cost more than the rules themselves
-    rule_no = frame.select(pl.coalesce(pl.when(rule).then(pl.lit(j, pl.UInt8)) for j, (_, rule) in enumerate(stage))).to_series()
-    hit = rule_no.is_not_null()
-    reason = pl.Series("reason", [name for name, _ in stage]).gather(rule_no.filter(hit))
-    return hit, pl.DataFrame([frame["row_index"].filter(hit), reason])
+    return {c for _, rule in stage for c in (rule.columns if isinstance(rule, SpeedSpike) else rule.meta.root_names())}
 
 
 def clean(raw: pl.DataFrame, source: str, cfg: IngestConfig = IngestConfig()) -> tuple[pl.DataFrame, pl.DataFrame]:
     """Normalised rows (`normalise`'s output: row_index is the row's position) -> (cleaned points with
     flight_id, rejects with reason). Every row ends in one.
 
-    The rules run on a slim frame of the numbers they test, sorted by (aircraft, ts, row_index); the strings
-    and the other columns are gathered once, for the rows that survive, in their final order (and for the
-    rejects, in theirs)."""
+    The rules run on a slim frame of the numbers they test, sorted by (aircraft, ts, row_index), and write
+    each rejected row's reason into one array over the raw rows; the tracks and the rejects are then gathered
+    from the raw rows once each, in their final order."""
     missing, *stages = _row_rules(cfg)
-    # the slim frame: the columns the rules test and those the tracks take from it
-    slim = set(TRACK_COLUMNS).union(*map(_tested, [missing, *stages]))
-    rows = raw.with_columns(_aircraft_ids(raw["icao24"])).select(c for c in dict.fromkeys([*TRACK_COLUMNS, *raw.columns]) if c in slim)
+    names = [name for stage in [missing, *stages] for name, _ in stage] + ["short_segment"]
+    reason = np.zeros(raw.height, dtype=np.uint8)  # per raw row: 0 kept, else 1 + number of the reason in names
+
+    def reject(row: np.ndarray, rule: np.ndarray, offset: int) -> np.ndarray:
+        """Record the rows a stage hit; returns the mask of rows it keeps."""
+        hit = rule > 0
+        reason[row[hit]] = rule[hit] + offset
+        return ~hit
+
+    # the slim frame: the columns the rules test and what the split needs
+    slim = set(SPLIT_COLUMNS).union(*map(_tested, [missing, *stages]))
+    rows = raw.select(c for c in raw.columns if c in slim)
     # the first stage looks at each row alone, so it runs before the sort, which then orders only the rows left
-    hit, rejects = _first_match(rows, missing)
-    rejected = [rejects]
-    kept = rows[_aircraft_time_order(rows, np.flatnonzero(~hit.to_numpy()))]
+    ok = reject(np.arange(raw.height), _first_match(rows, missing), 0)
+    kept = rows[_aircraft_time_order(rows, np.flatnonzero(ok))]
+    offset = len(missing)
     for i, stage in enumerate(stages):
-        hit, rejects = _first_match(kept, stage)
-        # carry on only with the columns that the later stages and the tracks use
-        later = set(TRACK_COLUMNS).union(*map(_tested, stages[i + 1 :]))
+        ok = reject(kept["row_index"].to_numpy(), _first_match(kept, stage), offset)
+        offset += len(stage)
+        # carry on only with the columns that the later stages and the split use
+        later = set(SPLIT_COLUMNS).union(*map(_tested, stages[i + 1 :]))
         kept = kept.select(c for c in kept.columns if c in later)
-        if rejects.height:  # a filter copies every column: skip it when the stage rejects nothing
-            rejected.append(rejects)
-            kept = kept.filter(~hit)
-    kept = kept.with_columns(callsign=raw["callsign"].gather(kept["row_index"]))
-    kept, flights = _split_flights(kept, raw["icao24"], cfg)
-    # rows are in (aircraft, ts) order and a flight_id names one aircraft, so a stable sort on the flight's
-    # rank alone gives (flight_id, ts) order at a sixth of the cost of sorting on both
-    kept = kept.with_columns(flights.select("flight_rank", "points")[kept["segment"]]).sort("flight_rank", maintain_order=True)
-    short = pl.col("points") < cfg.min_points
-    rejected.append(kept.filter(short).select("row_index", reason=pl.lit("short_segment")))
-    kept = kept.filter(~short)
-    reasons = pl.concat(rejected).sort("row_index")
-    rejects = pl.concat(
-        [reasons, raw.select("icao24", "callsign", "ts", "lat", "lon", "alt_m")[reasons["row_index"]]], how="horizontal"
-    ).with_columns(source=pl.lit(source))
-    # the other columns are gathered once, in the final order
-    more = raw.select("icao24", "groundspeed_mps", "track_deg", "vertical_rate_mps")[kept["row_index"]]
-    tracks = pl.concat([kept, more, flights.select("flight_id")[kept["segment"]]], how="horizontal").select(
-        "flight_id", "ts", "icao24",
-        # a flight without a callsign keeps the icao24 as its callsign so that downstream keys are never null
-        pl.col("callsign").fill_null(pl.col("icao24")),
-        "lat", "lon", "alt_m", "groundspeed_mps", "track_deg", "vertical_rate_mps",
+        if not ok.all():  # a filter copies every column: skip it when the stage rejects nothing
+            kept = kept.filter(pl.Series(ok))
+    segment, callsign_row, flights = _split_flights(kept, raw, cfg)
+    # rows are in (aircraft, ts) order and a flight_id names one aircraft, so the flights (contiguous runs of
+    # rows) put in the order of their names, stably, give (flight_id, ts) order: one gather of whole runs
+    # instead of sorting the rows, which also leaves out the runs too short to keep
+    points = flights["points"].to_numpy()
+    first = np.cumsum(points) - points
+    short = points < cfg.min_points
+    row = kept["row_index"].to_numpy()
+    reason[row[_runs(first[short], points[short])]] = len(names)
+    order = np.flatnonzero(~short)
+    order = order[np.argsort(flights["flight_rank"].to_numpy()[order], kind="stable")]
+    final = _runs(first[order], points[order])
+    tracks = raw.select("ts", "icao24", "lat", "lon", "alt_m", "groundspeed_mps", "track_deg", "vertical_rate_mps")[row[final]]
+    callsign = raw["callsign"].gather(callsign_row.gather(final))
+    if callsign.null_count():  # a flight without a callsign keeps its icao24 as one: downstream keys are never null
+        callsign = callsign.fill_null(tracks["icao24"])
+    tracks = tracks.with_columns(flight_id=flights["flight_id"].gather(segment[final]), callsign=callsign).select(
+        "flight_id", "ts", "icao24", "callsign", "lat", "lon", "alt_m", "groundspeed_mps", "track_deg", "vertical_rate_mps"
     )
+    # rejects in row order: the positions of the nonzero reasons are already sorted
+    out = np.flatnonzero(reason)
+    rejects = pl.concat(
+        [
+            pl.DataFrame({"row_index": out, "reason": pl.Series(names).gather(reason[out] - 1)}),
+            raw.select("icao24", "callsign", "ts", "lat", "lon", "alt_m")[out],
+        ],
+        how="horizontal",
+    ).with_columns(source=pl.lit(source))
     return tracks, rejects
 
 

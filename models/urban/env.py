@@ -131,7 +131,6 @@ class UrbanParallelEnv(ParallelEnv):
         self._obs_space = gymnasium.spaces.Box(-1.0, np.inf, (dim,), np.float32)
         self._act_space = gymnasium.spaces.Discrete(5)
         self.agents: list = []
-        self._roads: dict = {}
         self.sim: Simulation | None = None
         self.frames: list = []
 
@@ -207,10 +206,8 @@ class UrbanParallelEnv(ParallelEnv):
         n = len(snap.ids)
         if n == 0:
             return {}, {}, set()
-        # per road, once: (code, junction ahead or inside, internal edge?)
-        roads = np.array([self._roads.get(r) or self._roads.setdefault(r, (len(self._roads), idx.junction_of(r), r.startswith(":")))
-                          for r in snap.road]).reshape(-1, 3)
-        road_code, junction, internal = roads[:, 0], roads[:, 1].copy(), roads[:, 2].astype(bool)
+        # the network's facts of each vehicle's lane: road, junction ahead (or inside), internal edge?
+        road_code, junction, internal = idx.lane_road[snap.lane_code], idx.lane_junction[snap.lane_code], idx.lane_internal[snap.lane_code]
         n_edges = np.array([self.route_edges[route_agent(v)] for v in snap.ids])
         last_road = (snap.route_index >= n_edges - 1) & ~internal
         junction[last_road] = -1
@@ -240,20 +237,23 @@ class UrbanParallelEnv(ParallelEnv):
             set_acceleration(v, a, ACTION_S)
 
     def individual_state(self, snap, dist: np.ndarray) -> np.ndarray:
-        """[vel / vel_max, pos / 200 m, fveh_dist / 200 m, fveh_vel / vel_max] (-1: no front vehicle)."""
-        return np.column_stack([
-            snap.speed / self.vmax,
-            dist / POS_SCALE_M,
-            np.where(snap.leader_dist >= 0, snap.leader_dist / LEADER_SCALE_M, -1.0),
-            np.where(snap.leader_speed >= 0, snap.leader_speed / self.vmax, -1.0),
-        ])
+        """[vel / vel_max, pos / 200 m, fveh_dist / 200 m, fveh_vel / vel_max] (-1: no front vehicle), [n, 4]."""
+        # the four terms in one array, so one division and one `where` for all (vel and pos are never negative:
+        # only a missing front vehicle's -1 is kept as -1)
+        terms = np.array([snap.speed, dist, snap.leader_dist, snap.leader_speed])
+        scale = np.array([[self.vmax], [POS_SCALE_M], [LEADER_SCALE_M], [self.vmax]])
+        return np.where(terms >= 0, terms / scale, -1.0).T
 
     def _state_reward(self, snap, junction: np.ndarray, road_code: np.ndarray, dist: np.ndarray):
         """State (Eq 4.2; i-MARL: its first 4 terms) and non-terminal reward of every vehicle."""
         index = self.sim.index
-        col_term, density = junction_terms(junction, road_code, index.centre_dist(snap.lane, snap.lane_pos), snap.speed, index.incoming_lanes)
-        state = np.column_stack([self.individual_state(snap, dist), col_term, density])[:, : STATE_DIM[self.variant]]
-        return state.astype(np.float32), reward(self.variant, snap.speed, self.vmax, snap.leader_dist, col_term)
+        centre_dist = index.centre_dist(snap.lane_code, snap.lane_pos)
+        col_term, density = junction_terms(junction, road_code, centre_dist, snap.speed, index.incoming_lanes)
+        state = np.empty((len(dist), STATE_DIM[self.variant]), np.float32)  # filled column-wise: no stacking, one cast
+        state[:, :4] = self.individual_state(snap, dist)
+        if state.shape[1] == 6:
+            state[:, 4], state[:, 5] = col_term, density
+        return state, reward(self.variant, snap.speed, self.vmax, snap.leader_dist, col_term)
 
     def close(self):
         if self.sim is not None:

@@ -47,7 +47,9 @@ class ScenarioFiles:
 
 
 class NetIndex:
-    """Per-edge facts the state needs, as arrays: junction ahead, lane lengths, incoming lanes per junction."""
+    """Per-lane facts the state needs as arrays indexed by an integer lane code (`lane_codes`): length, distance to the
+    junction centre, junction ahead, road; and the incoming lanes per junction. One dict lookup per vehicle and
+    decision (lane id -> code) instead of one per fact."""
 
     def __init__(self, net_path: str):
         net = read_net(Path(net_path))
@@ -59,16 +61,49 @@ class NetIndex:
         self.lane_length = {ln.getID(): ln.getLength() for e in net.getEdges() for ln in e.getLanes()}
         self.j_index = j_index
         self.centre_at = _centre_positions(net_path, net)
+        self._road_code: dict = {}  # road id -> road code
+        self.lane_road_id: list = []  # lane code -> road id
+        self._rows: list = []  # lane code -> (length, centre position, junction ahead, road code, internal?)
+        self.lane_codes = _LaneCodes(self._add_lane)
+        for lane in self.centre_at:  # every lane of the network, internal ones included; others get a code when first seen
+            self.lane_codes[lane] = self._add_lane(lane, build=False)
+        self._build()
 
-    def centre_dist(self, lane: list, lane_pos: np.ndarray) -> np.ndarray:
+    def _add_lane(self, lane: str, build: bool = True) -> int:
+        road = lane.rpartition("_")[0]  # lane ids are <road>_<index>
+        code = self._road_code.setdefault(road, len(self._road_code))
+        self.lane_road_id.append(road)
+        self._rows.append((self.lane_length.get(lane, 0.0), self.centre_at.get(lane, 0.0), self.junction_of(road), code, road.startswith(":")))
+        if build:
+            self._build()
+        return len(self._rows) - 1
+
+    def _build(self) -> None:
+        length, centre, junction, road, internal = zip(*self._rows)
+        self.lane_len, self.lane_centre_m = np.array(length, float), np.array(centre, float)
+        self.lane_junction, self.lane_road, self.lane_internal = np.array(junction, int), np.array(road, int), np.array(internal, bool)
+
+    def centre_dist(self, lane_code: np.ndarray, lane_pos: np.ndarray) -> np.ndarray:
         """inter_dist of Eq 4.1: the distance (m) still to drive to the centre of the junction ahead, 0 once past it."""
-        return np.maximum(np.array([self.centre_at.get(ln, 0.0) for ln in lane], float) - lane_pos, 0.0)
+        return np.maximum(self.lane_centre_m[lane_code] - lane_pos, 0.0)
 
     def junction_of(self, road: str) -> int:
         """Junction a vehicle on `road` drives to; on an internal edge (':J_3') the junction it is inside."""
         if road.startswith(":"):
             return self.j_index.get(road[1:].rsplit("_", 1)[0], -1)
         return self.edge_junction.get(road, -1)
+
+
+class _LaneCodes(dict):
+    """lane id -> lane code; an unknown lane is added to the tables on first sight."""
+
+    def __init__(self, add):
+        super().__init__()
+        self._add = add
+
+    def __missing__(self, lane: str) -> int:
+        self[lane] = code = self._add(lane)
+        return code
 
 
 def _centre_positions(net_path: str, net) -> dict:
@@ -95,6 +130,7 @@ class Snapshot:
     lane_pos: np.ndarray
     lane_len: np.ndarray
     lane: list
+    lane_code: np.ndarray  # NetIndex lane code of `lane`: index into its lane_* tables
     road: list
     route_index: np.ndarray
     x: np.ndarray
@@ -134,7 +170,6 @@ class Simulation:
             if not Path(p).exists():
                 raise UrbanInputError(f"{p}: scenario file not found")
         self.index = NetIndex(files.net)
-        self._road_of: dict = {}  # lane -> road, instead of a getRoadID call per vehicle and decision
         self.max_time_s = files.last_depart_s + SLACK_S
 
     def start(self) -> None:
@@ -155,33 +190,34 @@ class Simulation:
 
     def advance(self, seconds: float) -> list:
         """Simulate `seconds` in sub-steps; returns the vehicles that departed meanwhile."""
-        ls, tally = self.ls, self.tally
+        tally, raw = self.tally, _raw()
         departed = []
         for _ in range(int(round(seconds / self.step_s))):
-            ls.simulationStep()
-            t = ls.simulation.getTime()
-            for v in ls.simulation.getDepartedIDList():
+            raw.simulation_step(0.0)
+            new, arrived = raw.simulation_getDepartedIDList(), raw.simulation_getArrivedIDList()
+            t = raw.simulation_getTime() if new or arrived else None
+            for v in new:
                 if self.speed_mode is not None:
-                    ls.vehicle.setSpeedMode(v, self.speed_mode)
+                    raw.vehicle_setSpeedMode(v, self.speed_mode)
                     # keep the entry speed until its first decision: uncommanded, speed mode 32 would let SUMO's
                     # car-following model accelerate without its safe-speed check
-                    ls.vehicle.setAcceleration(v, 0.0, ACTION_S)
+                    raw.vehicle_setAcceleration(v, 0.0, ACTION_S)
                 tally.depart[v] = t - self.step_s
                 departed.append(v)
-            for col in ls.simulation.getCollisions():
+            for col in raw.simulation_getCollisions():
                 pair = frozenset((col.collider, col.victim))
                 if pair not in tally.collision_pairs:
                     tally.collision_pairs.add(pair)
                     tally.collision_types[col.type] = tally.collision_types.get(col.type, 0) + 1
                     self.new_collisions |= pair
                 tally.collided |= pair
-            for v in ls.simulation.getStartingTeleportIDList():
+            for v in raw.simulation_getStartingTeleportIDList():
                 tally.teleported.add(v)
                 self.new_teleports.add(v)
-            for v in ls.simulation.getArrivedIDList():
+            for v in arrived:
                 if v not in tally.collided:
                     tally.arrive[v] = t
-            tally.vehicle_substeps += ls.vehicle.getIDCount()
+            tally.vehicle_substeps += raw.vehicle_getIDCount()
         return departed
 
     def snapshot(self, positions: bool = True) -> Snapshot:
@@ -189,54 +225,50 @@ class Simulation:
         every 0.2 s sub-step, and a context subscription set for the last sub-step only costs more than it saves:
         measured), one `map` per getter over all vehicles; also samples speed and fuel for the metrics.
         positions=False leaves x, y and accel as NaN (two getters fewer per vehicle: the RL state does not use them)."""
-        veh = self.ls.vehicle
-        ids = list(veh.getIDList())
-
-        def each(getter):
-            return np.fromiter(map(getter, ids), float, len(ids))
-
-        speed = each(veh.getSpeed)
-        leaders = list(map(veh.getLeader, ids, itertools.repeat(LEADER_LOOKAHEAD_M)))
-        lane = list(map(veh.getLaneID, ids))
-        road = [self._road_of.get(ln) or self._road_of.setdefault(ln, ln.rpartition("_")[0]) for ln in lane]  # lane ids are <road>_<index>
-        lane_pos, route_index, fuel = each(veh.getLanePosition), each(veh.getRouteIndex), each(veh.getFuelConsumption)
+        raw, index = _raw(), self.index
+        ids = list(raw.vehicle_getIDList())
+        n = len(ids)
+        lane = list(map(raw.vehicle_getLaneID, ids))
+        # speed, position on the lane, route index and fuel rate as the rows of one array
+        numbers = np.fromiter(itertools.chain(map(raw.vehicle_getSpeed, ids), map(raw.vehicle_getLanePosition, ids),
+                                              map(raw.vehicle_getRouteIndex, ids), map(raw.vehicle_getFuelConsumption, ids)), float, 4 * n)
+        numbers = numbers.reshape(4, n)
+        leaders = list(map(raw.vehicle_getLeader, ids, itertools.repeat(LEADER_LOOKAHEAD_M)))  # (id or "", distance)
         if positions:
-            xy, accel = np.array(list(map(veh.getPosition, ids)), float).reshape(-1, 2), each(veh.getAcceleration)
+            x, y = np.array(list(map(raw.vehicle_getPosition, ids)), float).reshape(-1, 2).T
+            accel = np.fromiter(map(raw.vehicle_getAcceleration, ids), float, n)
         else:
-            xy, accel = np.full((len(ids), 2), np.nan), np.full(len(ids), np.nan)
-        # getLeader's distance excludes the follower's minGap: add it back so the gap is bumper to bumper
-        # (otherwise a leader closer than minGap would read as negative, i.e. as "no leader")
-        lead_id = [ld[0] if ld and ld[0] else "" for ld in leaders]
-        leader_dist = np.array([max(ld[1] + MIN_GAP_M, 0.0) if li else -1.0 for ld, li in zip(leaders, lead_id)], float)
-        # vehicles being teleported are off the network (speed = SUMO's invalid value): left out
-        ok = speed >= 0
-        if not ok.all():
-            keep = np.flatnonzero(ok)
-            ids, lane, road, lead_id = ([x[i] for i in keep] for x in (ids, lane, road, lead_id))
-            speed, lane_pos, route_index, fuel, xy, accel, leader_dist = (
-                x[ok] for x in (speed, lane_pos, route_index, fuel, xy, accel, leader_dist))
-        speed_of = dict(zip(ids, speed))
-        lane_length = self.index.lane_length
+            x = y = accel = np.full(n, np.nan)  # one array for the three (nobody writes into a snapshot)
+        if n and numbers[0].min() < 0:  # vehicles being teleported are off the network (speed = SUMO's invalid value): left out
+            keep = np.flatnonzero(numbers[0] >= 0)
+            ids, lane, leaders = ([v[i] for i in keep] for v in (ids, lane, leaders))
+            numbers, x, y, accel, n = numbers[:, keep], x[keep], y[keep], accel[keep], len(keep)
+        speed, lane_pos, route_index, fuel = numbers
+        code = np.fromiter(map(index.lane_codes.__getitem__, lane), int, n)
+        speed_of = dict(zip(ids, speed.tolist()))
         snap = Snapshot(
-            t=self.ls.simulation.getTime(),
+            t=raw.simulation_getTime(),
             ids=ids,
             speed=speed,
             lane_pos=lane_pos,
-            lane_len=np.array([lane_length.get(ln, 0.0) for ln in lane], float),
+            lane_len=index.lane_len[code],
             lane=lane,
-            road=road,
+            lane_code=code,
+            road=list(map(index.lane_road_id.__getitem__, code.tolist())),
             route_index=route_index.astype(int),
-            x=xy[:, 0],
-            y=xy[:, 1],
+            x=x,
+            y=y,
             accel=accel,
             fuel_mgps=fuel,
-            leader_dist=leader_dist,
-            leader_speed=np.array([speed_of.get(li, -1.0) if li else -1.0 for li in lead_id], float),
+            # getLeader's distance excludes the follower's minGap: add it back so the gap is bumper to bumper
+            # (otherwise a leader closer than minGap would read as negative, i.e. as "no leader")
+            leader_dist=np.array([max(d + MIN_GAP_M, 0.0) if ld else -1.0 for ld, d in leaders], float),
+            leader_speed=np.array([speed_of.get(ld, -1.0) for ld, _ in leaders], float),
         )
-        density = np.fromiter(map(_fuel_density, ids), float, len(ids))
+        density = np.fromiter(map(_fuel_density, ids), float, n)
         self.tally.speed_sum += float(speed.sum())
         self.tally.fuel_ml_sum += float((fuel / density).sum()) if ids else 0.0
-        self.tally.samples += len(ids)
+        self.tally.samples += n
         return snap
 
     @property
@@ -265,6 +297,16 @@ class Simulation:
             "arrived": len(t.arrive),
             "success": not t.collision_pairs and not t.teleported and len(t.arrive) == n_vehicles,
         }
+
+
+@functools.cache
+def _raw():
+    """libsumo's C functions (`vehicle_getSpeed`, ...) without its Python wrappers (`libsumo.vehicle.getSpeed` calls
+    them through one more Python frame): the getters, setters and steps the env calls for every vehicle and sub-step,
+    a third of the env's Python time per decision (measured). Same functions, same values."""
+    from libsumo import _libsumo
+
+    return _libsumo
 
 
 @functools.lru_cache(maxsize=65536)

@@ -1,14 +1,16 @@
 """The environment over real libsumo: collisions detected, Eq 4.2 terms, determinism, PettingZoo API."""
 
+import hashlib
+
 import numpy as np
 import pytest
 
 from models.urban.col_marl import EpisodeJob, RouteAgentsQ, numpy_params, run_episode
 from models.urban.env import GOAL_REWARD, UrbanParallelEnv, junction_terms, reward, safe_dist
 from models.urban.network import UrbanInputError, read_net
-from models.urban.sim import NetIndex, ScenarioFiles, Simulation, run_sumo_model
+from models.urban.sim import LEADER_LOOKAHEAD_M, NetIndex, ScenarioFiles, Simulation, run_sumo_model
 
-from models.urban.scenarios import vtypes_xml
+from models.urban.scenarios import MIN_GAP_M, vtypes_xml
 from urban_fixtures import crossing_copy, make_copy
 
 HOLD = 2  # index of the zero acceleration in Table 4.1
@@ -53,12 +55,30 @@ def test_inter_dist_is_the_distance_to_the_junction_centre(sc1_net):
     end = np.array(read_net(sc1_net).getLane("left0A0_0").getShape()[-1])
     length = index.lane_length["left0A0_0"]
     # on the approach: the rest of the lane plus the lane end's distance to the centre (Eq 4.1), not the lane end
-    approach = index.centre_dist(["left0A0_0", "left0A0_0"], np.array([length - 50.0, length]))
+    approach = index.centre_dist(np.array([index.lane_codes["left0A0_0"]] * 2), np.array([length - 50.0, length]))
     np.testing.assert_allclose(approach, [50.0 + np.linalg.norm(end - centre), np.linalg.norm(end - centre)], rtol=1e-6)
     assert 5.0 < approach[1] < 10.0
     # inside the junction, straight on (:A0_10 from the left to the right): the centre is halfway; 0 once past it
-    inside = index.centre_dist([":A0_10_0"] * 3, np.array([0.0, 7.2, 12.0]))
+    inside = index.centre_dist(np.array([index.lane_codes[":A0_10_0"]] * 3), np.array([0.0, 7.2, 12.0]))
     np.testing.assert_allclose(inside, [7.2, 0.0, 0.0], atol=0.05)
+
+
+def test_lane_table_holds_each_lanes_road_junction_and_length(sc1_net):
+    # what the env reads per vehicle and decision, one row per lane found by its integer code
+    index, net = NetIndex(str(sc1_net)), read_net(sc1_net)
+    a0 = index.j_index["A0"]
+    for lane, road, junction, internal, length in [
+        ("left0A0_0", "left0A0", a0, False, net.getLane("left0A0_0").getLength()),  # approach: the junction ahead
+        (":A0_10_0", ":A0_10", a0, True, 0.0),  # inside: the junction it is in (its length is not used: pos = 0)
+        ("A0right0_0", "A0right0", index.j_index["right0"], False, net.getLane("A0right0_0").getLength()),  # exit: the dead end
+    ]:
+        c = index.lane_codes[lane]
+        assert (index.lane_road_id[c], index.lane_junction[c], index.lane_internal[c], index.lane_len[c]) == (road, junction, internal, length)
+    assert index.lane_road[index.lane_codes["left0A0_0"]] != index.lane_road[index.lane_codes[":A0_10_0"]]
+    # a lane the network file does not have gets its row on first sight, not a KeyError
+    n = len(index.lane_len)
+    c = index.lane_codes["nowhere_0"]
+    assert c == n and len(index.lane_junction) == n + 1 and index.lane_junction[c] == -1 and index.lane_road_id[c] == "nowhere"
 
 
 def test_speed_dependent_safe_dist():
@@ -97,6 +117,10 @@ def test_snapshot_reads_what_the_getters_say(tmp_path, sc1_net):
             full, light = sim.snapshot(), sim.snapshot(positions=False)
             veh = sim.ls.vehicle
             assert full.road == [veh.getRoadID(v) for v in full.ids]
+            assert full.lane_code.tolist() == [sim.index.lane_codes[veh.getLaneID(v)] for v in full.ids]
+            assert full.speed.tolist() == [veh.getSpeed(v) for v in full.ids]
+            leaders = [veh.getLeader(v, LEADER_LOOKAHEAD_M) for v in full.ids]  # None: no leader
+            assert full.leader_dist.tolist() == [max(ld[1] + MIN_GAP_M, 0.0) if ld else -1.0 for ld in leaders]
             assert full.x.tolist() == [veh.getPosition(v)[0] for v in full.ids]
             assert full.accel.tolist() == [veh.getAcceleration(v) for v in full.ids]
             seen_internal |= any(r.startswith(":") for r in full.road)
@@ -107,6 +131,36 @@ def test_snapshot_reads_what_the_getters_say(tmp_path, sc1_net):
         assert seen_internal  # a vehicle inside the junction: its road is the internal edge
     finally:
         sim.close()
+
+
+def _scripted_episode(files: ScenarioFiles, seed: int, leader_guard: bool = True) -> tuple:
+    """col-MARL's env under a fixed rule (full acceleration unless a collision is predicted, then full braking; 30 %
+    random actions): a digest of every observation, reward and end flag, the steps, the sum of the rewards, the
+    collisions and arrivals. Exact comparisons only in the rule, so the same on any machine."""
+    env = UrbanParallelEnv(files, "col", leader_guard=leader_guard)
+    rng = np.random.default_rng(seed)
+    digest, steps, reward_sum = hashlib.sha256(), 0, 0.0
+    obs, _ = env.reset(seed=seed)
+    while env.agents:
+        ids = sorted(env.agents)
+        actions = np.where(rng.random(len(ids)) < 0.3, rng.integers(0, 5, len(ids)), [0 if obs[v][4] > 0 else 4 for v in ids])
+        obs, rewards, terminated, truncated, _ = env.step(dict(zip(ids, actions.tolist())))
+        for v in sorted(obs):
+            digest.update(f"{v} {rewards.get(v)!r} {terminated[v]} {truncated[v]}".encode() + obs[v].tobytes())
+        steps += 1
+        reward_sum += sum(rewards.values())
+    metrics = env.sim.metrics(20)
+    env.close()
+    return digest.hexdigest()[:16], steps, round(reward_sum, 6), metrics["collisions"], metrics["arrived"]
+
+
+def test_episodes_are_the_ones_recorded_before_the_faster_state_read(tmp_path, sc1_net):
+    # recorded with the code of commit 9ad9744, before the env's speed work of issue 4 (lane table, libsumo's C
+    # getters, column-wise state): that work must not change an episode by a bit. A deliberate change of the
+    # dynamics, the state or the reward changes these values: then re-record them (run this episode, print the tuple)
+    files, _ = make_copy(tmp_path / "c", sc1_net, 20, 40.0)
+    assert _scripted_episode(files, 7) == ("7e5b7b99176ccab8", 101, 10584.563898, 2, 16)
+    assert _scripted_episode(files, 7, leader_guard=False) == ("338300890ce309e7", 53, -210.262798, 5, 10)
 
 
 def test_pettingzoo_parallel_api(tmp_path, sc1_net):

@@ -133,6 +133,11 @@ class AppLearnParams:
     # succeeded most, ties to the latest (Abbeel & Ng also return one of the iterations' policies, not
     # necessarily the last); False = the last one. Greedy success moves between IRL steps (e.g. 1, 1, 0, 1).
     select_policy: bool = True
+    # Baird's advantage learning: the TD target loses α (max_a Q⁻(s, a) - Q⁻(s, a_t)), which widens the gaps
+    # between the headings' Q-values by ~1/(1-α) (10x at 0.9) without changing the greedy policy of the exact
+    # Q. Far from the goal the DQN's gaps were below the Q-net's noise and the greedy policy zig-zagged
+    # (docs/applearn.md, fourth investigation); 0 = the thesis's DQN target
+    advantage_learning: float = 0.9
 
 
 # goal offset (in steps) seen by the DQN through tanh(offset / scale): fine near the goal, coarse far away
@@ -551,9 +556,11 @@ def n_step_returns(reward: np.ndarray, status: np.ndarray, gamma: float) -> tupl
 
 def _dqn_update(model: AppLearnModel, target_net: QNetwork, optimiser, memory: Replay, rows: np.ndarray) -> float:
     """One Adam step on the n-step TD error of the windows `rows` (batch, n) of the replay memory;
-    r_j = c · (wᵀφ(s'_j) + reward augmentation + γΦ(s'_j) - Φ(s_j))."""
+    r_j = c · (wᵀφ(s'_j) + reward augmentation + γΦ(s'_j) - Φ(s_j)); with advantage learning α the target
+    also loses α (max_a Q⁻(s, a) - Q⁻(s, a_t))."""
     p = model.params
-    status = memory.status[rows]
+    status, first = memory.status[rows], rows[:, 0]
+    action = torch.from_numpy(memory.a[first])[:, None]
     reward = memory.x2[rows, : model.features.size] @ model.w.astype(np.float32) - p.nonpositive_reward * model.w.clip(min=0).sum()
     reward += np.where(status == SUCCESS, p.success_reward, np.where(status != RUNNING, p.failure_reward, 0.0))
     reward += (1.0 if p.progress_reward else p.gamma) * memory.potential2[rows] - memory.potential[rows]
@@ -561,7 +568,10 @@ def _dqn_update(model: AppLearnModel, target_net: QNetwork, optimiser, memory: R
     with torch.no_grad():
         q_next = target_net(torch.from_numpy(memory.x2[rows[:, -1]])).max(dim=1).values
         target = torch.from_numpy(returns.astype(np.float32)) + p.gamma ** rows.shape[1] * torch.from_numpy(bootstrap.astype(np.float32)) * q_next
-    q = model.q_net(torch.from_numpy(memory.x[rows[:, 0]])).gather(1, torch.from_numpy(memory.a[rows[:, 0]])[:, None]).squeeze(1)
+        if p.advantage_learning:
+            q_now = target_net(torch.from_numpy(memory.x[first]))
+            target -= p.advantage_learning * (q_now.max(dim=1).values - q_now.gather(1, action).squeeze(1))
+    q = model.q_net(torch.from_numpy(memory.x[first])).gather(1, action).squeeze(1)
     loss = torch.nn.functional.mse_loss(q, target)
     optimiser.zero_grad()
     loss.backward()

@@ -1,5 +1,7 @@
 """AppLearn (chapter 6) and the SVM BC baseline on a real cluster: QP, environment, learning, reload, determinism."""
 
+from dataclasses import replace
+
 import numpy as np
 import polars as pl
 import pytest
@@ -10,6 +12,7 @@ from models.trajectory.applearn import (
     AppLearnModel,
     Replay,
     Route,
+    _dqn_update,
     demo_or_paper,
     max_margin_weights,
     n_step_returns,
@@ -229,3 +232,23 @@ def test_bad_inputs_give_one_line_errors(cluster, tmp_path):
         fit_geometry(train.drop("lat"))
     with pytest.raises(ValueError, match="partition 'P9'"):
         partition_flights(train, "P9", 0)
+
+
+def test_advantage_learning_target(trained):
+    """TD target γ max Q⁻(s') - α (max_a Q⁻(s, a) - Q⁻(s, a_t)), here with w = 0 and Φ = 0 (so r = 0) and Q⁻ = Q."""
+    model, _ = trained
+    model = replace(model, w=np.zeros_like(model.w))
+    rng = np.random.default_rng(0)
+    memory = Replay(64, model.n_inputs, 8)
+    for _ in range(4):  # running transitions (status 0), no potential
+        memory.add(rng.random((8, model.n_inputs)), rng.random((8, model.n_inputs)), rng.integers(0, 4, 8), np.zeros(8), np.zeros(8), np.zeros(8))
+    rows = memory.sample(rng, 32, n_step=1)
+    q, q_next = (model.q_net(torch.from_numpy(memory.x[rows[:, 0]])).detach(), model.q_net(torch.from_numpy(memory.x2[rows[:, 0]])).detach())
+    taken = q.gather(1, torch.from_numpy(memory.a[rows[:, 0]])[:, None]).squeeze(1)
+    gap = q.max(dim=1).values - taken
+    assert (gap > 0).any()
+    for alpha in (0.0, 0.9):
+        m = replace(model, params=replace(model.params, advantage_learning=alpha))
+        loss = _dqn_update(m, m.q_net, torch.optim.SGD(m.q_net.parameters(), lr=0.0), memory, rows)
+        target = model.params.gamma * q_next.max(dim=1).values - alpha * gap
+        assert loss == pytest.approx(float(((taken - target) ** 2).mean()), rel=1e-5)

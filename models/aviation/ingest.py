@@ -189,16 +189,18 @@ def _tidy_names(names: pl.Series, lower: bool) -> tuple[pl.Series, pl.Series]:
     ~10x cheaper; the rows then only gather from the runs."""
     run = names.rle_id()
     r = run.to_numpy()
-    values = names.gather(np.flatnonzero(np.r_[True, r[1:] != r[:-1]]))
+    starts = np.flatnonzero(np.r_[True, r[1:] != r[:-1]])
+    in_runs = len(starts) * 4 < len(r)  # else (e.g. rows sorted by time) the rows are their own values
+    values = names.gather(starts) if in_runs else names
     distinct = values.unique().drop_nulls()
     tidy = distinct.str.strip_chars()
     tidy = (tidy.str.to_lowercase() if lower else tidy).replace("", None)
     # codes in sorted order of the tidy names: an integer key that orders (and groups) like the strings
     code = tidy.cast(pl.Enum(tidy.drop_nulls().unique().sort())).to_physical().cast(pl.UInt32)
-    run_code = values.replace_strict(distinct, code, default=None, return_dtype=pl.UInt32)
-    if not tidy.equals(distinct):
-        names = values.replace_strict(distinct, tidy, default=None).gather(run)
-    return names, run_code.gather(run)
+    at = values.cast(pl.Enum(distinct)).to_physical()  # each value's position among the distinct ones
+    if in_runs:
+        at = at.gather(run)
+    return (names if tidy.equals(distinct) else tidy.gather(at)), code.gather(at)
 
 
 def normalise(df: pl.DataFrame, source: str) -> pl.DataFrame:

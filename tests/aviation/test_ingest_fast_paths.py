@@ -1,0 +1,96 @@
+"""The ingest's fast paths give exactly what the plain computation gives: the spike rule's cheap bound,
+the one-key (aircraft, ts) sort and its fallback, name codes from runs, and the flights table's end points."""
+
+import numpy as np
+import polars as pl
+
+from models.aviation.airports import flights_table
+from models.aviation.ingest import SpeedSpike, _aircraft_time_order, _tidy_names, ingest
+
+
+def _spike_oracle(rows: pl.DataFrame, max_speed: float, max_climb: float) -> np.ndarray:
+    """The rule written out plainly: the exact equirectangular leg on every row, as a polars expression."""
+    same = (pl.col("_ac") == pl.col("_ac").shift(1)).fill_null(False)
+    dt = ((pl.col("ts") - pl.col("ts").shift(1)).dt.total_microseconds() / 1e6).clip(lower_bound=1.0)
+    lat1, lon1, lat2, lon2 = pl.col("lat").shift(1), pl.col("lon").shift(1), pl.col("lat"), pl.col("lon")
+    dlon = ((lon2 - lon1 + 180.0) % 360.0 - 180.0).radians() * ((lat1 + lat2) / 2).radians().cos()
+    leg = 6_371_000.0 * ((lat2 - lat1).radians() ** 2 + dlon**2).sqrt()
+    fast = same & (leg / dt > max_speed)
+    steep = same & ((pl.col("alt_m") - pl.col("alt_m").shift(1)).abs() / dt > max_climb)
+    both = lambda x: (x & x.shift(-1)).fill_null(False)  # noqa: E731
+    return rows.select(both(fast) | both(steep)).to_series().to_numpy()
+
+
+def test_speed_spike_bound_matches_the_exact_rule():
+    """Legs near the speed limit, at every latitude, across the antimeridian and with 0 s steps."""
+    rng = np.random.default_rng(3)
+    n = 60_000
+    ac = np.sort(rng.integers(0, 40, n)).astype(np.uint32)
+    ts = np.cumsum(rng.choice([0, 1, 1, 5, 20], n)) * 1_000_000
+    lat = rng.uniform(-89.9, 89.9, n)
+    speed = rng.choice([300.0, 349.9, 350.0, 350.1, 400.0, 2_000.0], n)  # m/s to the next point, around the limit
+    bearing = rng.uniform(0, 2 * np.pi, n)
+    step = np.r_[np.diff(ts) / 1e6, 1.0].clip(min=1.0) * speed / 6_371_000.0
+    lat = np.clip(lat, -89.9, 89.9)
+    lon = rng.uniform(-180, 180, n)
+    lon[1:] = lon[:-1] + np.degrees(step[:-1] * np.sin(bearing[:-1]) / np.cos(np.radians(lat[:-1])))
+    lon = (lon + 180.0) % 360.0 - 180.0
+    lon[::997] = 179.999  # antimeridian neighbours
+    lon[1::997] = -179.999
+    alt = rng.normal(8_000, 3_000, n)
+    rows = pl.DataFrame({"_ac": ac, "ts": pl.Series(ts).cast(pl.Datetime("us", "UTC")), "lat": lat, "lon": lon, "alt_m": alt})
+    got = SpeedSpike(350.0, 100.0)(rows)
+    want = _spike_oracle(rows, 350.0, 100.0)
+    assert want.sum() > 100, "the case must contain spikes"
+    np.testing.assert_array_equal(got, want)
+
+
+def test_aircraft_time_order_one_key_and_fallback_equal_a_full_sort():
+    rng = np.random.default_rng(5)
+    n = 20_000
+    for span_us in (10**12, 2**60):  # 12 days: one int64 key; ~36,000 years: too wide, two sorts
+        rows = pl.DataFrame(
+            {
+                "_ac": rng.integers(0, 3_000, n).astype(np.uint32),
+                "ts": pl.Series(rng.integers(-span_us // 2, span_us // 2, n) // 7 * 7).cast(pl.Datetime("us", "UTC")),
+            }
+        ).with_row_index("row_index")
+        among = np.flatnonzero(rng.random(n) > 0.1)
+        want = rows[among].sort("_ac", "ts", "row_index")["row_index"].to_numpy()
+        np.testing.assert_array_equal(rows["row_index"].to_numpy()[_aircraft_time_order(rows, among)], want)
+
+
+def test_name_codes_sort_like_the_tidy_names_in_runs_or_not():
+    raw = pl.Series(["AFL1 ", "AFL1", "", None, "sdm2", "  SDM2", "AFL1", "abc", "abc", "abc"], dtype=pl.String)
+    for names in (raw, raw.gather(np.random.default_rng(0).permutation(raw.len()))):  # runs, and shuffled
+        for lower in (False, True):
+            tidy, code = _tidy_names(names, lower)
+            want = names.str.strip_chars()
+            want = (want.str.to_lowercase() if lower else want).replace("", None)
+            assert tidy.to_list() == want.to_list()
+            assert code.is_null().to_list() == want.is_null().to_list()
+            assert code.to_list() == (want.rank("dense").cast(pl.UInt32) - 1).to_list()
+
+
+def test_shuffled_file_gives_the_same_tracks(tmp_path, opensky_small):
+    """Unsorted input takes the general sort; tracks and reasons must not depend on the row order."""
+    df = pl.read_parquet(opensky_small)
+    perm = np.random.default_rng(2).permutation(df.height)
+    df.write_parquet(tmp_path / "a.parquet")
+    df[perm].write_parquet(tmp_path / "b.parquet")
+    ta, ra, _ = ingest(tmp_path / "a.parquet")
+    tb, rb, _ = ingest(tmp_path / "b.parquet")
+    assert ta.equals(tb)
+    # the same rows rejected for the same reasons (a duplicate keeps its first copy, so compare the counts)
+    assert dict(ra["reason"].value_counts().rows()) == dict(rb["reason"].value_counts().rows())
+
+
+def test_flights_table_end_points_equal_a_group_by(opensky_small):
+    tracks = ingest(opensky_small)[0]
+    short = pl.concat([tracks, tracks.group_by("flight_id", maintain_order=True).head(5).with_columns(pl.col("flight_id") + "_x")])
+    got = flights_table(short)
+    want = short.group_by("flight_id").agg(
+        pl.col("callsign", "icao24").first(), first_ts=pl.col("ts").min(), last_ts=pl.col("ts").max(), n_points=pl.len().cast(pl.Int64)
+    )
+    assert got.select(want.columns).equals(want.sort("flight_id"))
+    assert set(got.filter(pl.col("flight_id").str.ends_with("_x"))["n_points"]) == {5}

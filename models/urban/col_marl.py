@@ -113,6 +113,7 @@ class EpisodeJob:
     n_vehicles: int
     record: bool = False
     leader_guard: bool = True  # SUMO's car-following safety on (see models.urban.env)
+    shield: bool = False  # the env's optional safety layer: actions outside infos[v]["action_mask"] are never chosen (col/ind only)
 
 
 @dataclass
@@ -129,21 +130,26 @@ def run_episode(job: EpisodeJob) -> EpisodeResult:
     """Roll out one episode with ε-greedy route agents; returns every vehicle's transitions."""
     rng = np.random.default_rng(job.seed)
     spec = kit(job.variant)
-    env = spec.env(job.files, job.variant, sumo_seed=job.seed, record=job.record, leader_guard=job.leader_guard)
+    shield = {"shield": True} if job.shield else {}  # chapter 3's env has no safety layer
+    env = spec.env(job.files, job.variant, sumo_seed=job.seed, record=job.record, leader_guard=job.leader_guard, **shield)
     n_actions = env.action_space(None).n
     index = {a: i for i, a in enumerate(job.agents)}
     buf = {k: [] for k in ("agent_idx", "state", "action", "reward", "next_state", "done")}
     returns = np.zeros(len(job.agents))
     try:
-        obs, _ = env.reset(seed=job.seed)
+        obs, infos = env.reset(seed=job.seed)
         while env.agents:
             ids = list(env.agents)
             states = np.stack([obs[v] for v in ids])
             agent_idx = np.array([index[route_agent(v)] for v in ids])
-            greedy = spec.q_values(job.params, states, agent_idx).argmax(axis=1)
+            q = spec.q_values(job.params, states, agent_idx)
             explore = rng.random(len(ids)) < job.epsilon
-            action = np.where(explore, rng.integers(0, n_actions, len(ids)), greedy)
-            obs, rewards, terminated, truncated, _ = env.step(dict(zip(ids, action.tolist())))
+            if job.shield:  # the best allowed action; exploring: a uniform draw among the allowed ones
+                allowed = np.stack([infos[v]["action_mask"] for v in ids])
+                action = np.where(explore, (rng.random(allowed.shape) * allowed).argmax(axis=1), np.where(allowed, q, -np.inf).argmax(axis=1))
+            else:
+                action = np.where(explore, rng.integers(0, n_actions, len(ids)), q.argmax(axis=1))
+            obs, rewards, terminated, truncated, infos = env.step(dict(zip(ids, action.tolist())))
             r = np.array([rewards.get(v, 0.0) for v in ids])
             buf["agent_idx"].append(agent_idx)
             buf["state"].append(states)

@@ -57,13 +57,17 @@ BETA1, BETA2 = 3.0, 1.0  # Eq 3.2, 3.3 (i-MARL)
 MIN_FVEH_DIST_M = 1.0  # floor of fveh_dist in f(d) (Eq 4.5, 4.7; undefined at 0): one near step costs at most ~0.3 L
 MAX_F_D = SAFE_DIST_M / MIN_FVEH_DIST_M  # f(d) <= 20 whatever the rule: a longer safe_dist must not make crashing cheaper than following
 INTER_TIME_S = 1.5  # two vehicles reaching a junction closer in time than this are predicted to collide
+SHIELD_STALL_MPS = 1.0  # the optional safety layer (shield=True) forbids braking or holding below this speed with no predicted conflict
+# actions the safety layer leaves to a vehicle (indices of Table 4.1's accelerations, strongest braking first)
+SHIELD_YIELD, SHIELD_GO, SHIELD_UNSTALL = np.array([1, 1, 0, 0, 0], bool), np.array([0, 0, 1, 1, 1], bool), np.array([0, 0, 0, 1, 1], bool)
 POS_SCALE_M, LEADER_SCALE_M = 200.0, 200.0
 STATE_DIM = {"col": 6, "ind": 4}
 _CAR_MPS2, _HEAVY_MPS2 = np.array(ACTIONS_MPS2["car"]), np.array(ACTIONS_MPS2["heavy"])
 
 
-def junction_terms(junction: np.ndarray, road: np.ndarray, centre_dist_m: np.ndarray, speed: np.ndarray, incoming_lanes: np.ndarray):
-    """col_term and density of every vehicle (Eq 4.2), vectorised over all vehicles and junctions.
+def conflict_matrix(junction: np.ndarray, road: np.ndarray, centre_dist_m: np.ndarray, speed: np.ndarray):
+    """(inter_time [n], conflict [n, n]): vehicle i is predicted to collide with j (Eq 4.1-4.2): both approach (or are
+    inside) the same junction from different roads and reach its centre less than INTER_TIME_S apart.
     junction = -1 for vehicles with no junction ahead; road = integer code of the vehicle's road; centre_dist_m =
     inter_dist, the distance to the junction's centre (Eq 4.1)."""
     inter_time = centre_dist_m / np.maximum(speed, 0.1)
@@ -71,10 +75,34 @@ def junction_terms(junction: np.ndarray, road: np.ndarray, centre_dist_m: np.nda
     same_junction = (junction[:, None] == junction[None, :]) & active[:, None] & active[None, :]
     other_road = road[:, None] != road[None, :]
     close_in_time = np.abs(inter_time[:, None] - inter_time[None, :]) < INTER_TIME_S
-    conflicts = (same_junction & other_road & close_in_time).sum(axis=1)
+    return inter_time, same_junction & other_road & close_in_time
+
+
+def junction_terms(junction: np.ndarray, road: np.ndarray, centre_dist_m: np.ndarray, speed: np.ndarray, incoming_lanes: np.ndarray):
+    """col_term and density of every vehicle (Eq 4.2), vectorised over all vehicles and junctions (arguments: conflict_matrix)."""
+    active = junction >= 0
+    conflicts = conflict_matrix(junction, road, centre_dist_m, speed)[1].sum(axis=1)
     # density (§4.2.1): "the number of vehicles that the ego vehicle is predicted to collide with", per incoming lane
     density = np.where(active, conflicts / incoming_lanes[np.maximum(junction, 0)], 0.0)
     return (conflicts > 0).astype(float), density
+
+
+def shield_masks(junction: np.ndarray, road: np.ndarray, centre_dist_m: np.ndarray, speed: np.ndarray) -> np.ndarray:
+    """Allowed actions [n, 5] under the optional safety layer (not the thesis; an evaluation switch, reported separately):
+    of two vehicles predicted to collide (conflict_matrix) the one that reaches the junction's centre first goes on (no
+    braking) and the other one brakes (first come, first served; ties: the earlier vehicle in the list goes first); a
+    vehicle below SHIELD_STALL_MPS with no predicted conflict must accelerate (SUMO's car-following safety still holds it
+    behind a leader). Everything else is the policy's choice."""
+    inter_time, conflict = conflict_matrix(junction, road, centre_dist_m, speed)
+    n = len(speed)
+    earlier = (inter_time[None, :] < inter_time[:, None]) | ((inter_time[None, :] == inter_time[:, None]) & (np.arange(n)[None, :] < np.arange(n)[:, None]))
+    yields = (conflict & earlier).any(axis=1)
+    in_conflict = conflict.any(axis=1)
+    mask = np.ones((n, len(SHIELD_YIELD)), bool)
+    mask[yields] = SHIELD_YIELD
+    mask[in_conflict & ~yields] = SHIELD_GO
+    mask[~in_conflict & (speed < SHIELD_STALL_MPS) & (junction >= 0)] = SHIELD_UNSTALL
+    return mask
 
 
 def safe_dist(speed: np.ndarray, rule: str | None = None) -> np.ndarray:
@@ -114,10 +142,13 @@ def route_agent(vehicle_id: str) -> str:
 class UrbanParallelEnv(ParallelEnv):
     metadata = {"name": "trafficlearn_urban_v0", "render_modes": []}
 
-    def __init__(self, files: ScenarioFiles, variant: str = "col", sumo_seed: int = 0, record: bool = False, leader_guard: bool = True):
+    def __init__(self, files: ScenarioFiles, variant: str = "col", sumo_seed: int = 0, record: bool = False, leader_guard: bool = True,
+                 shield: bool = False):
         if variant not in STATE_DIM:
             raise ValueError(f"variant {variant!r}: expected one of {sorted(STATE_DIM)}")
         self.files, self.variant, self.sumo_seed, self.record = files, variant, sumo_seed, record
+        self.shield = shield  # safety layer: infos[v]["action_mask"] = shield_masks (the env does not enforce it; the learner masks Q)
+        self.action_masks: dict = {}
         self.positions = record  # x, y and acceleration are read only for recordings (the state does not use them)
         # Krauss: its safe speed is only the stopping-distance bound behind the leader (IDM's would impose IDM's acceleration law)
         self.speed_mode, self.driver_model = (SPEED_MODE_CAR_FOLLOWING, "Krauss") if leader_guard else (SPEED_MODE_FREE, "IDM")
@@ -147,7 +178,7 @@ class UrbanParallelEnv(ParallelEnv):
         self.agents, self.frames, self.finished = [], [], set()
         obs = self._wait_for_agents()
         self.agents = list(obs)
-        return obs, {a: {"route_agent": route_agent(a)} for a in self.agents}
+        return obs, self._infos(obs)
 
     def step(self, actions: dict):
         sim = self.sim
@@ -180,8 +211,12 @@ class UrbanParallelEnv(ParallelEnv):
             done = sim.done
             truncated |= {v: done for v in new}
             self.agents = [] if done else list(new)
-        infos = {v: {"route_agent": route_agent(v)} for v in obs}
-        return obs, rewards, terminated, truncated, infos
+        return obs, rewards, terminated, truncated, self._infos(obs)
+
+    def _infos(self, vehicles) -> dict:
+        if self.shield:
+            return {v: {"route_agent": route_agent(v), "action_mask": self.action_masks.get(v, SHIELD_GO | SHIELD_YIELD)} for v in vehicles}
+        return {v: {"route_agent": route_agent(v)} for v in vehicles}
 
     def _wait_for_agents(self) -> dict:
         """Simulate until some vehicle needs a decision or the episode is over (PettingZoo ends an episode
@@ -223,6 +258,8 @@ class UrbanParallelEnv(ParallelEnv):
                 sim.ls.vehicle.setSpeed(v, self.vmax)  # max acceleration up to vel_max (§4.3.1)
         keep = [i for i, v in enumerate(snap.ids) if v not in self.finished or v in goal]
         obs = {snap.ids[i]: state[i] for i in keep}
+        if self.shield:
+            self.action_masks = {snap.ids[i]: self._masks[i] for i in keep}
         rewards = {snap.ids[i]: float(r[i]) for i in keep}
         return obs, rewards, goal
 
@@ -249,6 +286,8 @@ class UrbanParallelEnv(ParallelEnv):
         index = self.sim.index
         centre_dist = index.centre_dist(snap.lane_code, snap.lane_pos)
         col_term, density = junction_terms(junction, road_code, centre_dist, snap.speed, index.incoming_lanes)
+        if self.shield:
+            self._masks = shield_masks(junction, road_code, centre_dist, snap.speed)
         state = np.empty((len(dist), STATE_DIM[self.variant]), np.float32)  # filled column-wise: no stacking, one cast
         state[:, :4] = self.individual_state(snap, dist)
         if state.shape[1] == 6:

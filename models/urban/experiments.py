@@ -20,6 +20,9 @@ REPO = Path(__file__).resolve().parents[2]
 REAL_NET = REPO / "data" / "sumo" / "bologna_acosta.net.xml.gz"
 METHODS_RL = {"col_marl": "col", "i_marl": "ind", "ch3_dqn_cnn": "ch3"}  # method -> models.urban.col_marl variant
 METHODS_SUMO = {"idm": "IDM", "krauss": "Krauss"}
+# evaluation-only methods: a trained method's policies driven through the env's optional safety layer (models.urban.env.shield_masks),
+# reported as their own rows next to the learned policy's
+METHODS_SHIELDED = {"col_marl_shield": "col_marl"}
 
 
 @dataclass(frozen=True)
@@ -159,10 +162,10 @@ def route_agents(routes: pl.DataFrame, network: str) -> list[str]:
 
 TABLE_METHODS = {
     "3.2": ("ch3_dqn_cnn", "krauss", "idm"),  # chapter 3's method
-    "4.3": ("col_marl", "i_marl", "idm"),
-    "4.4": ("col_marl", "idm"),
-    "4.5": ("col_marl", "idm"),
-    "4.7-4.9": ("col_marl", "idm"),
+    "4.3": ("col_marl", "col_marl_shield", "i_marl", "idm"),
+    "4.4": ("col_marl", "col_marl_shield", "idm"),
+    "4.5": ("col_marl", "col_marl_shield", "idm"),
+    "4.7-4.9": ("col_marl", "col_marl_shield", "idm"),
 }
 
 
@@ -249,7 +252,8 @@ def run_job(job):
 
 def evaluation_jobs(scenarios_df: pl.DataFrame, policies: dict, methods: list[str], record_copy: int | None = None):
     """(row keys, job) for every non-training copy x method x seed. policies: (scenario, method) ->
-    {seed: (agents, params, leader_guard)}. With record_copy set, only that copy, recorded (for trajectories)."""
+    {seed: (agents, params, leader_guard)}; a METHODS_SHIELDED method drives its trained method's policies with the
+    safety layer on. With record_copy set, only that copy, recorded (for trajectories)."""
     from models.urban.col_marl import EpisodeJob
 
     out = []
@@ -264,9 +268,11 @@ def evaluation_jobs(scenarios_df: pl.DataFrame, policies: dict, methods: list[st
                 out.append(((row["scenario"], row["copy"], method, 0, row["n_vehicles"]),
                             SumoJob(files, METHODS_SUMO[method], 0, row["n_vehicles"], record)))
                 continue
-            for seed, (agents, params, guard) in sorted(policies.get((row["policy_scenario"], method), {}).items()):
+            trained = METHODS_SHIELDED.get(method, method)
+            for seed, (agents, params, guard) in sorted(policies.get((row["policy_scenario"], trained), {}).items()):
                 out.append(((row["scenario"], row["copy"], method, seed, row["n_vehicles"]),
-                            EpisodeJob(files, METHODS_RL[method], agents, params, 0.0, 7919 + row["copy"], row["n_vehicles"], record, guard)))
+                            EpisodeJob(files, METHODS_RL[trained], agents, params, 0.0, 7919 + row["copy"], row["n_vehicles"], record, guard,
+                                       shield=method in METHODS_SHIELDED)))
                 if record:
                     break  # one policy per method is enough for the trajectories
     return out

@@ -10,7 +10,8 @@ Algorithm 7 and the saved model, in that order. The equations, as in §6.4:
     w            = argmax_{w,t} t  s.t. wᵀμ(π_E) ≥ wᵀμ(π_j) + t for every policy j so far, ‖w‖₂ ≤ 1
                    (the max-margin QP of Abbeel & Ng 2004; a second-order cone program, solved by CLARABEL)
     DQN          : L(θ) = E[(Σ_{j<n} γʲ r_{t+j} + γⁿ (1 - done) max_a' Q_θ⁻(s_{t+n}, a') - Q_θ(s_t, a_t))²]   (n-step)
-                   r = c · (R_w(s') + r_aug(s') + Φ(s') - Φ(s))
+                   r = c · (R_w(s') + r_aug(s') + Φ(s') - Φ(s)); with advantage learning the target also loses
+                   α (max_a Q_θ⁻(s_t, a) - Q_θ⁻(s_t, a_t))  (Baird 1999: widens the gaps between the headings' Q-values)
 
 r_aug is the reward augmentation of §6.5.2: a large bonus on reaching the destination, a large penalty on
 leaving the box or hitting the step limit. The environment is models.trajectory.heading_env (Eq 6.4).
@@ -22,7 +23,7 @@ with RBF widths to match, so φ_pos cannot tell a point 20 km off the route from
 Φ(s') - Φ(s), Φ(s) = -(distance to the goal along the route) / step (Ng et al.'s shaping without the γ on
 Φ(s'), see `progress_reward`), which pays every step's progress at once; n-step returns; a step reward ≤ 0;
 the wider fan of headings (heading_env.fit_geometry); the IRL step's policy with the best greedy success on
-the training flights is returned; and, in training only, a quarter of the episodes start along the route and
+the training flights is returned; advantage learning in the DQN target; and, in training only, a quarter of the episodes start along the route and
 an episode fails as soon as it leaves a corridor around the route or passes the goal.
 
 Choices the thesis leaves open or that deviate from it are commented at their parameters (gamma,

@@ -131,7 +131,8 @@ def flights_table(tracks: pl.DataFrame) -> pl.DataFrame:
     ahead = _bearing_deg(e["latm"], e["lonm"], e["latn"], e["lonn"])
     origin, _ = best_airport(e["lat0"], e["lon0"], e["alt0"], back)
     dest, _ = best_airport(e["latn"], e["lonn"], e["altn"], ahead)
-    voted = ends.with_columns(origin=pl.Series(origin, dtype=pl.String), destination=pl.Series(dest, dtype=pl.String))
+    # lists, not the object arrays: polars cannot cast an object array that starts with None (no airport) to String
+    voted = ends.with_columns(origin=pl.Series(origin.tolist(), dtype=pl.String), destination=pl.Series(dest.tolist(), dtype=pl.String))
     voted = voted.with_columns(
         pl.col(c).drop_nulls().mode().sort().first().over("callsign").fill_null(pl.col(c)).fill_null("UNKNOWN")
         for c in ("origin", "destination")

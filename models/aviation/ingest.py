@@ -303,7 +303,7 @@ class SpeedSpike:
         same = ac[1:] == ac[:-1]
         # 1 s floor on dt: OpenSky timestamps are whole seconds, a 0 s step would make every move "infinite"
         dt = np.maximum(np.diff(rows["ts"].dt.epoch("us").to_numpy()) / 1e6, 1.0)
-        steep = same & (np.abs(np.diff(alt)) > self.max_climb_mps * dt)
+        steep = same & (np.abs(np.diff(alt)) / dt > self.max_climb_mps)  # as a rate: `> c * dt` rounds otherwise at the limit
         # A cheap bound clears nearly every leg: with cos x <= 1 - x²/2 + x⁴/24 (0.2 % high at 60°) in place of
         # the cosine a leg only gets longer, so a leg possible under it is possible; the few others get the
         # exact distance with its trigonometry.

@@ -45,6 +45,31 @@ def test_speed_spike_bound_matches_the_exact_rule():
     np.testing.assert_array_equal(got, want)
 
 
+def test_climb_limit_is_a_rate_as_in_the_plain_rule():
+    """Fractional-second steps whose climb rate is exactly at the limit: `a / dt > c` and `a > c * dt` round
+    differently (found in review: 51.186829 s steps of 5118.6829 m), so the rule must compare rates."""
+    n, dt_us, climb = 80, 51_186_829, 5118.682900000001
+    rows = pl.DataFrame({
+        "_ac": np.zeros(n, np.uint32), "ts": pl.Series(np.arange(n) * dt_us).cast(pl.Datetime("us", "UTC")),
+        "lat": np.full(n, 54.0), "lon": np.full(n, 20.0), "alt_m": np.tile([0.0, climb], n // 2),
+    })
+    np.testing.assert_array_equal(SpeedSpike(350.0, 100.0)(rows), _spike_oracle(rows, 350.0, 100.0))
+
+
+def test_flights_table_when_the_first_flight_has_no_airport(opensky_small):
+    """No airport near the first flight's ends (Southern Ocean, cruise altitude) and airports for the others: one row
+    per flight, the first one's origin and destination UNKNOWN (polars cannot cast such an object array to String)."""
+    tracks = ingest(opensky_small)[0]
+    first = tracks.filter(pl.col("flight_id") == tracks["flight_id"].min())
+    lost = first.with_columns(flight_id=pl.lit("AAA_lost"), callsign=pl.lit("AAALOST"), lat=pl.col("lat") - 54.0 - 60.0,
+                              lon=pl.col("lon") - 20.0 - 120.0, alt_m=pl.lit(11_000.0))
+    flights = flights_table(pl.concat([lost, tracks]))
+    assert flights.height == tracks["flight_id"].n_unique() + 1
+    row = flights.filter(pl.col("flight_id") == "AAA_lost")
+    assert row["origin"].to_list() == ["UNKNOWN"] and row["destination"].to_list() == ["UNKNOWN"]
+    assert (flights.filter(pl.col("flight_id") != "AAA_lost")["origin"] != "UNKNOWN").any()
+
+
 def test_aircraft_time_order_one_key_and_fallback_equal_a_full_sort():
     rng = np.random.default_rng(5)
     n = 20_000

@@ -52,6 +52,8 @@ class PerFlightEpisodes:
 
     def run_episode(self, learner, level: Level, eps: float, rng: np.random.Generator, learn: bool = True) -> tuple[np.ndarray, int]:
         """One episode from zero delays, as `train.run_episode` with the thesis reward -> (delays [min], hotspots left)."""
+        if level.n_extra != 1:  # the bench times the defaults; silently differing from run_episode would be worse
+            raise ValueError("the per-flight baseline implements the thesis's local state (d_i, h_i) only")
         p, own, cap, step = self.problem, self.own, self.capacity, level.action_step
         delay = [0] * p.n_flights
         counts = [0] * len(cap)

@@ -156,7 +156,7 @@ class Ch3Env(UrbanParallelEnv):
 
     def _state_reward(self, snap, junction, road_code, dist):
         geo = self.geo
-        internal = np.array([r.startswith(":") for r in snap.road], bool)
+        internal = self.sim.index.lane_internal[snap.lane_code]  # the lane table's "inside a junction" (sim.NetIndex)
         xy = np.column_stack([snap.x, snap.y])
         entry = np.where(internal[:, None], xy, np.array([geo.lane_end.get(ln, (0.0, 0.0)) for ln in snap.lane]).reshape(-1, 2))
         direction = np.array([geo.lane_dir.get(ln, (0.0, 0.0)) for ln in snap.lane]).reshape(-1, 2)

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from models.dcb.mirl import IndependentQ
-from models.dcb.problem import AVG_DELAY_COST_EUR_PER_MIN, C_PLUS, LAMBDA, DCBProblem
+from models.dcb.problem import AVG_DELAY_COST_EUR_PER_MIN, C_PLUS, DCBProblem
 from models.dcb.train import H_CAP, Level
 
 
@@ -48,7 +48,7 @@ class PerFlightEpisodes:
             self.own[f].append((base, m, dur))
         self.active = [f for f in range(problem.n_flights) if self.own[f]]  # flights with no such entry never act
         self.capacity = problem.capacity.tolist()
-        self.delay_cost = (LAMBDA * problem.delay_weight).tolist()  # λ · DC_i per minute of delay
+        self.delay_cost = problem.delay_cost.tolist()  # λ · DC_i per minute of delay
 
     def run_episode(self, learner, level: Level, eps: float, rng: np.random.Generator, learn: bool = True) -> tuple[np.ndarray, int]:
         """One episode from zero delays, as `train.run_episode` with the thesis reward -> (delays [min], hotspots left)."""

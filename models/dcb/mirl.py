@@ -37,9 +37,12 @@ class IndependentQ:
         return self._q(agents, state[agents])
 
     def update(self, state, action, reward, next_state, agents) -> None:
-        cell = (agents, state[agents], action[agents])
-        target = reward[agents] + self.gamma * row_max(self._q(agents, next_state[agents]))  # Eq 5.6
-        self.q[cell] += self.lr * (target - self.q[cell])
+        row = agents * self.q.shape[1]
+        cell = 2 * (row + state[agents]) + action[agents]  # Q_i(s_i, a_i) in the flat table: 1-d indexing is ~3x faster
+        q = self.q.reshape(-1)  # a view: q is created C-contiguous (zeros, or a copy of the prior)
+        target = reward[agents] + self.gamma * row_max(self.q.reshape(-1, 2).take(row + next_state[agents], axis=0))  # Eq 5.6
+        old = q[cell]
+        q[cell] = old + self.lr * (target - old)
 
     def update_loop(self, state, action, reward, next_state, agents) -> None:
         """The same update as `update`, one flight at a time (benchmark baseline only)."""

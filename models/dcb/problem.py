@@ -75,7 +75,7 @@ class _Entries:
     dur_min: np.ndarray
 
     def keys(self, delay_min: np.ndarray) -> np.ndarray:
-        return self.key_base + (self.whole_min + delay_min[self.flight]) // 60
+        return self.key_base + (self.whole_min + delay_min.take(self.flight)) // 60
 
 
 class DCBProblem:
@@ -111,6 +111,7 @@ class DCBProblem:
         self._all_entries = self._entry_arrays(slice(None))
         cost = flights["aircraft_class"].replace_strict(DELAY_COST_EUR_PER_MIN, return_dtype=pl.Float64).to_numpy()
         self.delay_weight = cost / AVG_DELAY_COST_EUR_PER_MIN  # DC per minute of delay, in average-cost minutes
+        self.delay_cost = LAMBDA * self.delay_weight  # λ · DC_i per minute of delay (Eq 5.2), once, not every step
 
     def _entries_that_can_be_hot(self) -> np.ndarray:
         """Entries that can land in a sector-hour that some delays in [0, MaxDelay] overload.
@@ -141,11 +142,12 @@ class DCBProblem:
         counts = np.bincount(key, minlength=self.capacity.size)
         hot = counts > self.capacity
         entry_hot = hot[key]
-        hot_flight = e.flight[entry_hot]
+        hot_idx = entry_hot.nonzero()[0]  # ~10 % of the entries: gathering them by index beats three boolean masks
+        hot_flight = e.flight[hot_idx]
         h = np.bincount(hot_flight, minlength=self.n_flights)  # h_i: hot entries per flight
         # TDC_i: their minutes inside (bincount of no entries at all returns int zeros, hence the cast)
-        tdc = np.bincount(hot_flight, weights=e.dur_min[entry_hot], minlength=self.n_flights).astype(np.float64, copy=False)
-        return Evaluation(counts, hot, key, entry_hot, h, tdc, key[entry_hot], hot_flight)
+        tdc = np.bincount(hot_flight, weights=e.dur_min[hot_idx], minlength=self.n_flights).astype(np.float64, copy=False)
+        return Evaluation(counts, hot, key, entry_hot, h, tdc, key[hot_idx], hot_flight)
 
     def movers(self, delay_min: np.ndarray, ev: Evaluation) -> np.ndarray:
         """[flight] 1 if one of its hot entries is among the `demand - capacity` entries of that hotspot
@@ -164,7 +166,7 @@ class DCBProblem:
     def reward(self, delay_min: np.ndarray, ev: Evaluation) -> np.ndarray:
         """Eq 5.2-5.4 for every flight."""
         congestion = np.where(ev.congested_min > 0, -AVG_DELAY_COST_EUR_PER_MIN * ev.congested_min, C_PLUS)
-        return congestion - LAMBDA * self.delay_weight * delay_min
+        return congestion - self.delay_cost * delay_min
 
     def difference_reward(self, added_min: np.ndarray, before: Evaluation, after: Evaluation) -> np.ndarray:
         """D_i = G(z) - G(z_-i): what flight i's own action changed in the day's congestion and delay cost,
@@ -186,7 +188,7 @@ class DCBProblem:
         removed = (count[k0] + 1 > cap0) * (inside[k0] + dur) - (count[k0] > cap0) * inside[k0]
         added = (count[k1] > cap1) * inside[k1] - (count[k1] - 1 > cap1) * (inside[k1] - dur)
         congestion = np.bincount(e.flight[change], weights=removed - added, minlength=self.n_flights)
-        return AVG_DELAY_COST_EUR_PER_MIN * congestion - LAMBDA * self.delay_weight * added_min
+        return AVG_DELAY_COST_EUR_PER_MIN * congestion - self.delay_cost * added_min
 
     def overload_reward(self, added_min: np.ndarray, before: Evaluation, after: Evaluation) -> np.ndarray:
         """The difference reward of G = -P · Σ_k max(0, count_k - capacity_k) - λ · Σ_i DC_i: the day's overload
@@ -203,7 +205,7 @@ class DCBProblem:
         k0, k1, count = before.entry_key[change], after.entry_key[change], after.counts
         lowered = (count[k0] + 1 > self.capacity[k0]).astype(np.float64) - (count[k1] > self.capacity[k1])
         penalty = 2 * LAMBDA * self.max_delay_min
-        return penalty * np.bincount(e.flight[change], weights=lowered, minlength=self.n_flights) - LAMBDA * self.delay_weight * added_min
+        return penalty * np.bincount(e.flight[change], weights=lowered, minlength=self.n_flights) - self.delay_cost * added_min
 
 
 def base_capacities(entries: pl.DataFrame, sectors: pl.DataFrame) -> dict[str, int]:

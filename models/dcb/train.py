@@ -119,15 +119,15 @@ def run_episode(problem: DCBProblem, learner, level: Level, eps: float, rng: np.
     delay = np.zeros(problem.n_flights, dtype=np.int64)
     ev = problem.evaluate(delay)
     state = local_state(problem, level, delay, ev)
+    # every flight in a hotspot acts: at step t < MaxDelay // step all delays are <= t · step, so one more step stays within MaxDelay
     for _ in range(problem.max_delay_min // level.action_step):
-        agents = np.nonzero((ev.hotspots_per_flight > 0) & (delay + level.action_step <= problem.max_delay_min))[0]
+        agents = ev.hotspots_per_flight.nonzero()[0]
         if agents.size == 0:
             break
         q = learner.values(state, agents, ev)
-        greedy = (q[:, 1] > q[:, 0]).astype(np.int64)  # ties hold: no delay without a reason
         explore = rng.random(agents.size) < eps
         action = np.zeros(problem.n_flights, dtype=np.int64)
-        action[agents] = np.where(explore, rng.integers(0, 2, agents.size), greedy)
+        action[agents] = np.where(explore, rng.integers(0, 2, agents.size), q[:, 1] > q[:, 0])  # greedy: ties hold, no delay without a reason
         delay, before = delay + action * level.action_step, ev
         ev = problem.evaluate(delay)
         next_state = local_state(problem, level, delay, ev)

@@ -23,8 +23,9 @@ with RBF widths to match, so φ_pos cannot tell a point 20 km off the route from
 Φ(s') - Φ(s), Φ(s) = -(distance to the goal along the route) / step (Ng et al.'s shaping without the γ on
 Φ(s'), see `progress_reward`), which pays every step's progress at once; n-step returns; a step reward ≤ 0;
 the wider fan of headings (heading_env.fit_geometry); the IRL step's policy with the best greedy success on
-the training flights is returned; advantage learning in the DQN target; and, in training only, a quarter of the episodes start along the route and
-an episode fails as soon as it leaves a corridor around the route or passes the goal.
+the training flights is returned; advantage learning in the DQN target; and, in training only, a quarter of
+the episodes start along the route and 15 % on its final approach, and an episode fails as soon as it leaves a
+corridor around the route or passes the goal.
 
 Choices the thesis leaves open or that deviate from it are commented at their parameters (gamma,
 success_reward, failure_reward, reward_scale, feature_gamma, start_anywhere_fraction). The main deviation, on by default
@@ -128,6 +129,10 @@ class AppLearnParams:
     # expert points rarely lie near the goal (mode 0's tracks end anywhere over 200 km), so without them the
     # failing runs never saw a success and never learnt the final approach (from 32 km out they missed the disc)
     route_start_fraction: float = 0.25
+    # this share starts on the route's final approach (its last GOAL_START_WIDTHS · σ, σ to either side): only
+    # ~1 route start in 16 lies there on mode 0, and the failing mode-0 run's Q-values fell towards the goal
+    # (about -8 within 10 km of it, -5 far out): it zig-zagged 5-10 km off the disc (docs/applearn.md)
+    goal_start_fraction: float = 0.15
     n_step: int = 10  # n of the n-step return; 1 = the one-step target of the thesis's DQN
     corridor_widths: float = 4.0  # training only: failure beyond this many σ from the route or past the goal; 0 = off
     # return the policy of the IRL step whose greedy roll-outs from the experts' first points (training flights)
@@ -144,6 +149,7 @@ class AppLearnParams:
 # goal offset (in steps) seen by the DQN through tanh(offset / scale): fine near the goal, coarse far away
 GOAL_OFFSET_SCALES_STEPS = (10.0, 100.0)
 KM_PER_DEG = 111.2  # km per degree of latitude (and of scaled longitude, lon · cos(lat0))
+GOAL_START_WIDTHS = 8.0  # final-approach training starts (goal_start_fraction) lie on the route's last 8 σ (~70-100 km)
 ROUTE_POINTS = 100  # vertices of the centroid route polyline
 
 PROFILES = {
@@ -227,11 +233,13 @@ class Route:
         last = self.points[-1] - self.points[-2]
         return (p - self.points[-1]) @ (last / np.linalg.norm(last).clip(1e-12)) * KM_PER_DEG
 
-    def sample(self, rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
-        """n (lon, lat) points spread uniformly along the route, each moved sideways by N(0, σ)."""
+    def sample(self, rng: np.random.Generator, n: int, last_km: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """n (lon, lat) points spread uniformly along the route (or its last `last_km` before the goal), each moved
+        sideways by N(0, σ)."""
         seg = np.diff(self.points, axis=0)
         length = np.linalg.norm(seg, axis=1)
-        at = rng.random(n) * length.sum()
+        total = length.sum()
+        at = rng.random(n) * total if last_km is None else total - rng.random(n) * min(last_km / KM_PER_DEG, total)
         k = np.searchsorted(np.cumsum(length), at).clip(0, len(seg) - 1)
         t = (at - np.concatenate([[0.0], np.cumsum(length)[:-1]])[k]) / length[k].clip(1e-12)
         normal = np.stack([-seg[k, 1], seg[k, 0]], axis=1) / length[k, None].clip(1e-12)
@@ -435,12 +443,18 @@ def train_applearn(
 
     def pick_starts(n: int) -> StartStates:
         """n start states: a random expert's first point, or (start_anywhere_fraction) any expert point, or
-        (route_start_fraction) a point along the experts' route."""
+        (route_start_fraction) a point along the experts' route, or (goal_start_fraction) one on its final approach."""
         u = rng.random(n)
         lon, lat = route.sample(rng, n)
-        on_route = StartStates(lon, lat, altitude.predict(lon, lat), firsts.ts_us[rng.integers(0, len(firsts), n)])
-        chosen = StartStates.concat([firsts.take(rng.integers(0, len(firsts), n)), anywhere.take(rng.integers(0, len(anywhere), n)), on_route])
-        kind = np.where(u < params.route_start_fraction, 2, np.where(u < params.route_start_fraction + params.start_anywhere_fraction, 1, 0))
+        ts = firsts.ts_us[rng.integers(0, len(firsts), n)]
+        parts = [firsts.take(rng.integers(0, len(firsts), n)), anywhere.take(rng.integers(0, len(anywhere), n)),
+                 StartStates(lon, lat, altitude.predict(lon, lat), ts)]
+        if params.goal_start_fraction:  # drawn only when used: the other starts keep their random stream
+            lon, lat = route.sample(rng, n, last_km=GOAL_START_WIDTHS * route.width_km)
+            parts.append(StartStates(lon, lat, altitude.predict(lon, lat), ts))
+        chosen = StartStates.concat(parts)
+        bounds = np.cumsum([params.route_start_fraction, params.start_anywhere_fraction, params.goal_start_fraction])
+        kind = np.select([u < bounds[0], u < bounds[1], u < bounds[2]], [2, 1, 3], 0)
         return chosen.take(kind * n + np.arange(n))
 
     memory = Replay(params.buffer_size, model.n_inputs, params.n_envs)

@@ -13,7 +13,7 @@ from models.markdown import markdown_table
 from models.urban.experiments import run_job
 from warehouse.artifacts import artifact_path, save_plot
 
-METHODS = ["col_marl", "i_marl", "ch3_dqn_cnn", "idm", "krauss"]
+METHODS = ["col_marl", "col_marl_shield", "i_marl", "ch3_dqn_cnn", "idm", "krauss"]  # col_marl_shield: the learned policies under the optional safety layer, its own rows
 
 
 class EvaluationConfig(dg.Config):

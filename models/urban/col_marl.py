@@ -282,14 +282,16 @@ def train(
     log=print,
     leader_guard: bool = True,
     gradient_steps: int | None = None,
+    shield: bool = False,
 ) -> tuple[dict, list[dict]]:
     """Train the route agents on the training copies (episode k uses copy k mod len(copies)).
 
     `run_parallel(jobs)` runs EpisodeJobs (in worker processes) and returns their results in order; a
     round holds as many episodes as it has workers, all with the same weights. The gradient steps run in as many
     threads as there are workers (the workers wait meanwhile); the same seed gives the same weights and log.
-    gradient_steps per episode: None = the variant's default. Returns (numpy weights, one log row per route agent
-    and episode)."""
+    gradient_steps per episode: None = the variant's default. shield: the training episodes run under the env's safety
+    layer (the agents learn only from allowed actions; off by default: not the thesis, and measured no better,
+    docs/urban.md). Returns (numpy weights, one log row per route agent and episode)."""
     torch.manual_seed(seed)
     gen = torch.Generator().manual_seed(seed)
     rng = np.random.default_rng(seed)
@@ -307,7 +309,7 @@ def train(
         params = numpy_params(q)
         jobs = [
             EpisodeJob(copies[(episode + i) % len(copies)][0], variant, agents, params, epsilon_at(episode + i, episodes),
-                       seed * 100_003 + episode + i, copies[(episode + i) % len(copies)][1], leader_guard=leader_guard)
+                       seed * 100_003 + episode + i, copies[(episode + i) % len(copies)][1], leader_guard=leader_guard, shield=shield)
             for i in range(n)
         ]
         for job, result in zip(jobs, run_parallel(jobs)):

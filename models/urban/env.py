@@ -36,12 +36,14 @@ SUMO check off (speed mode 32), rear-end collisions possible.
 
 import functools
 import re
+from dataclasses import dataclass
 from pathlib import Path
 
 import gymnasium
 import numpy as np
 from pettingzoo import ParallelEnv
 
+from models.urban.network import read_net
 from models.urban.scenarios import ACTIONS_MPS2
 from models.urban.sim import ACTION_S, SPEED_MODE_CAR_FOLLOWING, SPEED_MODE_FREE, ScenarioFiles, Simulation
 
@@ -57,12 +59,24 @@ BETA1, BETA2 = 3.0, 1.0  # Eq 3.2, 3.3 (i-MARL)
 MIN_FVEH_DIST_M = 1.0  # floor of fveh_dist in f(d) (Eq 4.5, 4.7; undefined at 0): one near step costs at most ~0.3 L
 MAX_F_D = SAFE_DIST_M / MIN_FVEH_DIST_M  # f(d) <= 20 whatever the rule: a longer safe_dist must not make crashing cheaper than following
 INTER_TIME_S = 1.5  # two vehicles reaching a junction closer in time than this are predicted to collide
-SHIELD_STALL_MPS = 1.0  # the optional safety layer (shield=True) forbids braking or holding below this speed with no predicted conflict
+# the optional safety layer (shield=True, not the thesis; shield_masks): a reservation of each junction by arrival time
+SHIELD_STALL_MPS = 5.0  # a vehicle with nobody to yield to may not slow below this by its own choice (no stalls, no teleports)
+SHIELD_WINDOW_S = 3.0  # two vehicles from different roads reaching a junction's centre closer in time than this conflict
+SHIELD_BRAKE_MPS2 = 4.0  # braking the layer counts on: the heavy class's strongest (Table 4.1; cars have 5)
+SHIELD_MEDIUM_BRAKE_MPS2 = 2.0  # a yielding vehicle may brake with Decel_M only if this stops it (heavy class's; cars 2.5)
+SHIELD_ACCEL_MPS2 = 3.0  # the strongest acceleration a free vehicle may hold for the next second (Table 4.1, cars)
+SHIELD_MOVE_OFF_MPS2 = 2.5  # arrival times at the centre are estimated accelerating at this from the current speed
+SHIELD_REACTION_S = 0.2  # a new acceleration acts from the next sub-step
+SHIELD_MARGIN_M = 5.0  # slack on the distance the layer still lets a vehicle decide freely
+SHIELD_CRAWL_MPS = 5.0  # a vehicle this slow inside a junction blocks it for the vehicles of its own road too
+# the layer also looks at the junctions after the next one on a vehicle's route: those within this distance, at most this many
+SHIELD_LOOKAHEAD_M, SHIELD_LOOKAHEAD_JUNCTIONS = 250.0, 3
 # actions the safety layer leaves to a vehicle (indices of Table 4.1's accelerations, strongest braking first)
-SHIELD_YIELD, SHIELD_GO, SHIELD_UNSTALL = np.array([1, 1, 0, 0, 0], bool), np.array([0, 0, 1, 1, 1], bool), np.array([0, 0, 0, 1, 1], bool)
+SHIELD_YIELD, SHIELD_BRAKE_HARD, SHIELD_UNSTALL = np.array([1, 1, 0, 0, 0], bool), np.array([1, 0, 0, 0, 0], bool), np.array([0, 0, 0, 1, 1], bool)
 POS_SCALE_M, LEADER_SCALE_M = 200.0, 200.0
 STATE_DIM = {"col": 6, "ind": 4}
 _CAR_MPS2, _HEAVY_MPS2 = np.array(ACTIONS_MPS2["car"]), np.array(ACTIONS_MPS2["heavy"])
+_ALL_ACTIONS = np.ones(len(_CAR_MPS2), bool)
 
 
 def conflict_matrix(junction: np.ndarray, road: np.ndarray, centre_dist_m: np.ndarray, speed: np.ndarray):
@@ -87,21 +101,75 @@ def junction_terms(junction: np.ndarray, road: np.ndarray, centre_dist_m: np.nda
     return (conflicts > 0).astype(float), density
 
 
-def shield_masks(junction: np.ndarray, road: np.ndarray, centre_dist_m: np.ndarray, speed: np.ndarray) -> np.ndarray:
-    """Allowed actions [n, 5] under the optional safety layer (not the thesis; an evaluation switch, reported separately):
-    of two vehicles predicted to collide (conflict_matrix) the one that reaches the junction's centre first goes on (no
-    braking) and the other one brakes (first come, first served; ties: the earlier vehicle in the list goes first); a
-    vehicle below SHIELD_STALL_MPS with no predicted conflict must accelerate (SUMO's car-following safety still holds it
-    behind a leader). Everything else is the policy's choice."""
-    inter_time, conflict = conflict_matrix(junction, road, centre_dist_m, speed)
-    n = len(speed)
-    earlier = (inter_time[None, :] < inter_time[:, None]) | ((inter_time[None, :] == inter_time[:, None]) & (np.arange(n)[None, :] < np.arange(n)[:, None]))
-    yields = (conflict & earlier).any(axis=1)
-    in_conflict = conflict.any(axis=1)
-    mask = np.ones((n, len(SHIELD_YIELD)), bool)
-    mask[yields] = SHIELD_YIELD
-    mask[in_conflict & ~yields] = SHIELD_GO
-    mask[~in_conflict & (speed < SHIELD_STALL_MPS) & (junction >= 0)] = SHIELD_UNSTALL
+def shield_masks(junction: np.ndarray, road: np.ndarray, centre_dist_m: np.ndarray, stop_dist_m: np.ndarray, speed: np.ndarray,
+                 internal: np.ndarray, ahead_of: np.ndarray | None = None) -> np.ndarray:
+    """Allowed actions [n, 5] of n vehicles under the optional safety layer (not the thesis; an evaluation switch,
+    reported separately).
+
+    One row per vehicle and junction: the first n rows are the vehicles and the junction ahead of (or under) them; the
+    rows after them are look-ahead rows, the next junctions on the route of vehicle `ahead_of[j]` (within
+    SHIELD_LOOKAHEAD_M: at 30 m/s a vehicle must decide ~180 m before a junction, further than the short roads of a
+    real network). junction: -1 for none; road: the road a vehicle enters the junction from (for one inside, the road
+    it entered from: its followers on that road are SUMO's car following's business, unless it crawls);
+    centre_dist_m: to the junction's centre (Eq 4.1); stop_dist_m: to its stop line (0 inside); internal: inside.
+
+    Each junction is reserved in this order: vehicles inside it, then vehicles that can no longer stop before its stop
+    line (they enter whatever they do), then by arrival time at the centre, accelerating from the current speed (a
+    stopped vehicle's is its move-off time sqrt(2d/a), not d / 0.1 m/s: it would otherwise never be "first"). An
+    approaching vehicle yields (brakes) when a vehicle from another road with a higher place is inside the junction or reaches the centre
+    less than SHIELD_WINDOW_S from it, and this second is its last chance to choose: after a second of the strongest
+    acceleration it could no longer stop before the line. Farther vehicles choose freely (they are asked again next
+    second). A vehicle yields if it yields at any of its junctions. Look-ahead rows come after every vehicle at that
+    junction that has no junction to cross before it, unless they are committed (so, of two vehicles driving towards
+    each other's next junction, each is first at its own). A vehicle first in all its conflicts at its next junction,
+    or inside one, must accelerate (braking there blocks the junction for everyone); not yielding, a vehicle may not
+    brake or hold below SHIELD_STALL_MPS. SUMO's car following still holds every vehicle behind its leader (a vehicle
+    made to accelerate stops behind a stopped one)."""
+    rows = len(speed)
+    ahead_of = np.zeros(0, int) if ahead_of is None else ahead_of
+    n = rows - len(ahead_of)
+    owner = np.concatenate([np.arange(n), ahead_of])
+    ahead = np.arange(rows) >= n
+    active = junction >= 0
+    approaching = active & ~internal
+    stopping_m = speed * SHIELD_REACTION_S + speed**2 / (2 * SHIELD_BRAKE_MPS2)
+    committed = approaching & (stop_dist_m < stopping_m)  # enters the junction whatever it does now
+    # after a second at the strongest acceleration it could not stop any more: the last second to decide is now
+    v1 = speed + SHIELD_ACCEL_MPS2 * ACTION_S
+    reach_m = speed * ACTION_S + SHIELD_ACCEL_MPS2 * ACTION_S**2 / 2 + v1 * SHIELD_REACTION_S + v1**2 / (2 * SHIELD_BRAKE_MPS2)
+    deciding = approaching & (stop_dist_m <= reach_m + SHIELD_MARGIN_M)
+    # arrival time at the centre accelerating at SHIELD_MOVE_OFF_MPS2, as a vehicle that goes is made to (d / v would put a
+    # slow vehicle seconds after a fast one that it actually meets: a replay, both crept into the junction at once)
+    arrival_s = (np.sqrt(speed**2 + 2 * SHIELD_MOVE_OFF_MPS2 * centre_dist_m) - speed) / SHIELD_MOVE_OFF_MPS2
+    # place in the junction's order: rank (0 inside, 1 committed, 2 others, 3 look-ahead), then arrival time, then list order
+    rank = np.where(internal, 0, np.where(committed, 1, np.where(ahead, 3, 2)))
+    order = np.lexsort((np.arange(rows), arrival_s, rank))
+    place = np.empty(rows, int)
+    place[order] = np.arange(rows)
+    # vehicles of the same road are left to SUMO's car following, except behind one crawling inside the junction: it is
+    # their leader only if their paths through it are the same (a replay on the real network: a follower turning the
+    # other way drove into one that crawled through the junction at 0.7 m/s)
+    blocking = internal & (speed < SHIELD_CRAWL_MPS)
+    other_road = (road[:, None] != road[None, :]) | blocking[None, :]
+    rivals = (junction[:, None] == junction[None, :]) & active[:, None] & active[None, :] & other_road & (owner[:, None] != owner[None, :])
+    close = internal[None, :] | (np.abs(arrival_s[:, None] - arrival_s[None, :]) < SHIELD_WINDOW_S)
+    conflict = rivals & close & approaching[:, None]  # [i, k]: approaching i conflicts with k (inside, or close in time)
+    before = place[None, :] < place[:, None]  # [i, k]: k goes before i
+    behind = (conflict & before).any(axis=1)
+    # per vehicle (over its rows): yields anywhere; yields hard anywhere (Decel_M only where it still stops the vehicle
+    # before the line: a replay, a heavy vehicle braking at 2 m/s² from 17.5 m/s, 60 m out, entered the junction at
+    # 7.5 m/s into a car crawling through it); first in all its conflicts of a row, or inside: clears
+    needed_mps2 = speed**2 / (2 * np.maximum(stop_dist_m - speed * SHIELD_REACTION_S, 0.1))
+    yields, hard, clears = np.zeros(n, bool), np.zeros(n, bool), np.zeros(n, bool)
+    np.logical_or.at(yields, owner, deciding & behind)
+    np.logical_or.at(hard, owner, deciding & behind & (needed_mps2 > SHIELD_MEDIUM_BRAKE_MPS2))
+    np.logical_or.at(clears, owner, (internal | (approaching & conflict.any(axis=1) & ~behind)) & ~ahead)
+    v, active = speed[:n], active[:n]
+    # with nobody to yield to, no braking or holding that leaves the vehicle below SHIELD_STALL_MPS (a replay: a policy that
+    # braked to 0 at every second outside any conflict held a whole road at 0.7 m/s for minutes)
+    mask = ~((active & ~yields)[:, None] & (_CAR_MPS2 <= 0)[None, :] & (v[:, None] + _CAR_MPS2[None, :] * ACTION_S < SHIELD_STALL_MPS))
+    mask[clears] = SHIELD_UNSTALL  # accelerates, to clear the junction soon (holding a crawl blocks the others)
+    mask[yields] = np.where(hard[yields, None], SHIELD_BRAKE_HARD, SHIELD_YIELD)
     return mask
 
 
@@ -132,6 +200,65 @@ def reward(variant: str, speed: np.ndarray, vmax: float, fveh_dist: np.ndarray, 
     )
 
 
+@functools.cache
+def _net_geometry(net_path: str) -> tuple[dict, dict]:
+    """(internal lane id -> the normal lane a vehicle on it entered the junction from, through chains of internal lanes;
+    edge id -> distance (m) from its junction's centre to its start), for the safety layer."""
+    net = read_net(Path(net_path), internal=True)
+    via = {c.getViaLaneID(): c.getFromLane().getID() for e in net.getEdges(withInternal=True)
+           for conns in e.getOutgoing().values() for c in conns if c.getViaLaneID()}
+    entry = {}
+    for lane in via:
+        seen, origin = {lane}, via[lane]
+        while origin.startswith(":") and origin in via and origin not in seen:
+            seen.add(origin)
+            origin = via[origin]
+        entry[lane] = origin
+    gap_out = {e.getID(): float(np.hypot(*np.subtract(e.getLanes()[0].getShape()[0][:2], e.getFromNode().getCoord()[:2])))
+               for e in net.getEdges(withInternal=False)}
+    return entry, gap_out
+
+
+def entry_roads(net_path: str, index) -> np.ndarray:
+    """lane code -> road code of the road a vehicle on that lane entered its junction from (a normal lane: its own road)."""
+    entry = _net_geometry(net_path)[0]
+    code_of_road = dict(zip(index.lane_road_id, index.lane_road.tolist()))
+    out = index.lane_road.copy()
+    for lane, code in index.lane_codes.items():
+        if lane in entry:
+            out[code] = code_of_road.get(entry[lane].rpartition("_")[0], out[code])
+    return out
+
+
+@dataclass(frozen=True)
+class RouteTable:
+    """Per route agent (row, `code`) and edge of its route (column), for the safety layer's look-ahead: the junction at
+    the edge's end (-1 on the last edge: the goal), the road code, the position of that junction's centre along the
+    route (m) and the distance from the edge's stop line to it."""
+
+    code: dict
+    junction: np.ndarray
+    road: np.ndarray
+    centre_m: np.ndarray
+    stop_to_centre_m: np.ndarray
+
+
+def route_table(net_path: str, index, routes: dict) -> RouteTable:
+    """routes: route id -> its edges. Distances between junction centres: to the next edge's start plus its lane 0."""
+    gap_out = _net_geometry(net_path)[1]
+    shape = (len(routes), max(len(e) for e in routes.values()))
+    junction, road = np.full(shape, -1), np.full(shape, -1)
+    centre, stop_to_centre = np.zeros(shape), np.zeros(shape)
+    for r, edges in enumerate(routes.values()):
+        codes = np.array([index.lane_codes[f"{e}_0"] for e in edges])
+        junction[r, : len(edges) - 1] = index.lane_junction[codes[:-1]]
+        road[r, : len(edges)] = index.lane_road[codes]
+        stop_to_centre[r, : len(edges)] = index.lane_centre_m[codes] - index.lane_len[codes]
+        centre[r, : len(edges)] = np.cumsum(index.lane_centre_m[codes] + np.array([0.0] + [gap_out[e] for e in edges[1:]]))
+    code = {f"{rid}:{cls}": r for r, rid in enumerate(routes) for cls in ACTIONS_MPS2}
+    return RouteTable(code, junction, road, centre, stop_to_centre)
+
+
 @functools.lru_cache(maxsize=65536)
 def route_agent(vehicle_id: str) -> str:
     """`r003.car.17` -> `r003:car` (vehicle ids are written by models.urban.scenarios); cached: asked every step."""
@@ -154,9 +281,8 @@ class UrbanParallelEnv(ParallelEnv):
         self.speed_mode, self.driver_model = (SPEED_MODE_CAR_FOLLOWING, "Krauss") if leader_guard else (SPEED_MODE_FREE, "IDM")
         text = Path(files.routes).read_text()
         self.possible_agents = re.findall(r'<vehicle id="([^"]+)"', text)
-        self.route_edges = {  # route agent -> edges of its route
-            f"{rid}:{cls}": len(edges.split()) for rid, edges in re.findall(r'<route id="([^"]+)" edges="([^"]*)"', text) for cls in ACTIONS_MPS2
-        }
+        self.routes = {rid: edges.split() for rid, edges in re.findall(r'<route id="([^"]+)" edges="([^"]*)"', text)}
+        self.route_edges = {f"{rid}:{cls}": len(edges) for rid, edges in self.routes.items() for cls in ACTIONS_MPS2}  # route agent -> edges
         self.vmax = files.max_speed_mps
         dim = STATE_DIM[variant]
         self._obs_space = gymnasium.spaces.Box(-1.0, np.inf, (dim,), np.float32)
@@ -175,6 +301,9 @@ class UrbanParallelEnv(ParallelEnv):
         self.close()
         self.sim = Simulation(self.files, model=self.driver_model, seed=self.sumo_seed if seed is None else seed, speed_mode=self.speed_mode)
         self.sim.start()
+        if self.shield:
+            self._entry = entry_roads(self.files.net, self.sim.index)
+            self._route_table = route_table(self.files.net, self.sim.index, self.routes)
         self.agents, self.frames, self.finished = [], [], set()
         obs = self._wait_for_agents()
         self.agents = list(obs)
@@ -215,7 +344,7 @@ class UrbanParallelEnv(ParallelEnv):
 
     def _infos(self, vehicles) -> dict:
         if self.shield:
-            return {v: {"route_agent": route_agent(v), "action_mask": self.action_masks.get(v, SHIELD_GO | SHIELD_YIELD)} for v in vehicles}
+            return {v: {"route_agent": route_agent(v), "action_mask": self.action_masks.get(v, _ALL_ACTIONS)} for v in vehicles}
         return {v: {"route_agent": route_agent(v)} for v in vehicles}
 
     def _wait_for_agents(self) -> dict:
@@ -287,12 +416,33 @@ class UrbanParallelEnv(ParallelEnv):
         centre_dist = index.centre_dist(snap.lane_code, snap.lane_pos)
         col_term, density = junction_terms(junction, road_code, centre_dist, snap.speed, index.incoming_lanes)
         if self.shield:
-            self._masks = shield_masks(junction, road_code, centre_dist, snap.speed)
+            self._masks = self._shield(snap, junction, road_code, centre_dist, dist)
         state = np.empty((len(dist), STATE_DIM[self.variant]), np.float32)  # filled column-wise: no stacking, one cast
         state[:, :4] = self.individual_state(snap, dist)
         if state.shape[1] == 6:
             state[:, 4], state[:, 5] = col_term, density
         return state, reward(self.variant, snap.speed, self.vmax, snap.leader_dist, col_term)
+
+    def _shield(self, snap, junction: np.ndarray, road_code: np.ndarray, centre_dist: np.ndarray, dist: np.ndarray) -> np.ndarray:
+        """shield_masks of every vehicle: its own row (inside a junction: with the road it entered from) and look-ahead
+        rows for the next junctions of its route."""
+        index, table = self.sim.index, self._route_table
+        if len(self._entry) < len(index.lane_road):  # lanes first seen during the episode are normal lanes: their own road
+            self._entry = np.concatenate([self._entry, index.lane_road[len(self._entry):]])
+        internal = index.lane_internal[snap.lane_code]
+        road = np.where(internal, self._entry[snap.lane_code], road_code)
+        route = np.array([table.code[route_agent(v)] for v in snap.ids], int)
+        edge = np.minimum(snap.route_index[:, None] + np.arange(1, SHIELD_LOOKAHEAD_JUNCTIONS + 1), table.junction.shape[1] - 1)
+        ahead_m = centre_dist[:, None] + table.centre_m[route[:, None], edge] - table.centre_m[route, snap.route_index][:, None]
+        ahead_j = np.where(edge > snap.route_index[:, None], table.junction[route[:, None], edge], -1)
+        keep = (junction[:, None] >= 0) & (ahead_j >= 0) & (ahead_m <= SHIELD_LOOKAHEAD_M)
+        owner, col = np.nonzero(keep)
+        e = edge[owner, col]
+        return shield_masks(
+            np.concatenate([junction, ahead_j[keep]]), np.concatenate([road, table.road[route[owner], e]]),
+            np.concatenate([centre_dist, ahead_m[keep]]), np.concatenate([dist, ahead_m[keep] - table.stop_to_centre_m[route[owner], e]]),
+            np.concatenate([snap.speed, snap.speed[owner]]), np.concatenate([internal, np.zeros(len(owner), bool)]), owner,
+        )
 
     def close(self):
         if self.sim is not None:

@@ -5,14 +5,13 @@ import torch
 
 from models.urban import col_marl
 from models.urban.col_marl import EpisodeJob, ReplayBuffers, RouteAgentsQ, dqn_update, kit, run_episode, train
-from models.urban.env import shield_masks
 from models.parallel import ProcessPool
-from urban_fixtures import crossing_copy, make_copy
+from urban_fixtures import make_copy
 
 
-def _train(files, agents, variant, seed, episodes=3, gradient_steps=None):
+def _train(files, agents, variant, seed, episodes=3, gradient_steps=None, shield=False):
     with ProcessPool(1, run_episode) as pool:
-        return train([(files, 15)], agents, variant, episodes, seed, pool, log=lambda _: None, gradient_steps=gradient_steps)
+        return train([(files, 15)], agents, variant, episodes, seed, pool, log=lambda _: None, gradient_steps=gradient_steps, shield=shield)
 
 
 def test_same_seed_same_policy_and_log(tmp_path, sc1_net):
@@ -25,6 +24,14 @@ def test_same_seed_same_policy_and_log(tmp_path, sc1_net):
     assert not np.array_equal(pa["w1"], pc["w1"])
     assert {r["episode"] for r in ra} == {0, 1, 2} and len(ra) == 3 * len(agents)
     assert ra[0]["epsilon"] == 0.9 and ra[-1]["epsilon"] < 0.9
+
+
+def test_training_under_the_safety_layer_reaches_the_episodes(tmp_path, sc1_net):
+    files, routes = make_copy(tmp_path / "c", sc1_net, 15, 60.0)
+    agents = [f"{r['route_id']}:{c}" for r in routes for c in ("car", "heavy")]
+    (free, _), (shielded, rows) = (_train(files, agents, "col", 0, episodes=2, gradient_steps=2, shield=s) for s in (False, True))
+    assert not np.array_equal(free["w1"], shielded["w1"])  # masked actions: other transitions, other weights
+    assert len(rows) == 2 * len(agents)
 
 
 def test_i_marl_sees_four_state_terms(tmp_path, sc1_net):
@@ -124,36 +131,3 @@ def test_replay_buffers_keep_the_target_networks_q_of_every_next_state():
         target.w1.add_(1.0)  # a target-network update
     buffers.refresh(target, chunk=3)
     check()
-
-
-def test_shield_masks_first_come_first_served_and_no_stall():
-    # 0 and 1 reach junction 0's centre from different roads 0.5 s apart; 2 stands on 0's road with nobody near in time;
-    # 3 has no junction ahead; 4 is alone at junction 1
-    junction, road = np.array([0, 0, 0, -1, 1]), np.array([0, 1, 0, 2, 3])
-    mask = shield_masks(junction, road, np.array([20.0, 25.0, 100.0, 5.0, 50.0]), np.array([10.0, 10.0, 0.5, 0.0, 20.0]))
-    assert mask.tolist() == [[False, False, True, True, True],  # first: goes on, no braking
-                             [True, True, False, False, False],  # second: brakes
-                             [False, False, False, True, True],  # stopped with no conflict: accelerates
-                             [True] * 5, [True] * 5]
-    tie = shield_masks(np.array([0, 0]), np.array([0, 1]), np.array([20.0, 20.0]), np.array([10.0, 10.0]))
-    assert tie[:, 0].tolist() == [False, True]  # same arrival time: the second in the list yields
-
-
-def _constant_policy(agents, action):
-    """Every route agent picks `action` whatever the state."""
-    n = len(agents)
-    b2 = np.zeros((n, 5), np.float32)
-    b2[:, action] = 1.0
-    return {"w1": np.zeros((n, 6, 128), np.float32), "b1": np.zeros((n, 128), np.float32), "w2": np.zeros((n, 128, 5), np.float32), "b2": b2}
-
-
-def test_shield_prevents_the_forced_crossing_and_the_stall(tmp_path, sc1_net):
-    agents = ["r000:car", "r001:car"]
-    cross = crossing_copy(tmp_path / "cross", sc1_net)  # two cars that meet in the junction if both hold their speed
-    hold = [run_episode(EpisodeJob(cross, "col", agents, _constant_policy(agents, 2), 0.0, 0, 2, shield=s)).metrics for s in (False, True)]
-    assert hold[0]["collisions"] == 1
-    assert hold[1]["collisions"] == 0 and hold[1]["arrived"] == 2 and hold[1]["success"]
-    lone = crossing_copy(tmp_path / "turn", sc1_net, turn=True)  # one car alone: a policy that always brakes stops it for good
-    brake = [run_episode(EpisodeJob(lone, "col", ["r001:car"], _constant_policy(["r001:car"], 0), 0.0, 0, 1, shield=s)).metrics for s in (False, True)]
-    assert brake[0]["teleports"] == 1 and not brake[0]["success"]  # SUMO teleports it after 120 s standing
-    assert brake[1]["teleports"] == 0 and brake[1]["success"]

@@ -1,0 +1,114 @@
+"""The optional safety layer (env.shield_masks): hand-built junction situations, the look-ahead's route table on a real
+two-junction network, and real SUMO episodes where it removes a forced collision and a stall."""
+
+import numpy as np
+import pytest
+
+from models.urban import env as E
+from models.urban.col_marl import EpisodeJob, run_episode
+from models.urban.env import SHIELD_BRAKE_HARD, SHIELD_UNSTALL, SHIELD_YIELD, route_table, shield_masks
+from models.urban.network import artificial_network, read_net
+from models.urban.sim import NetIndex
+from urban_fixtures import crossing_copy
+
+FREE = [True] * 5
+
+
+def _masks(rows, ahead_of=None):
+    """rows: (junction, road, centre_dist_m, stop_dist_m, speed, internal) per row."""
+    cols = [np.array(c) for c in zip(*rows)]
+    return shield_masks(*cols[:5], cols[5].astype(bool), None if ahead_of is None else np.array(ahead_of)).tolist()
+
+
+def test_a_vehicle_inside_the_junction_makes_an_approaching_one_yield():
+    # 0 is inside junction 0, entered from road 0, at 8 m/s. 1 approaches from road 1, 40 m before the line at 12 m/s:
+    # its last second to choose (it could still stop). 2 is 150 m out: it will be asked again.
+    inside, approach = (0, 0, 3.0, 0.0, 8.0, 1), (0, 1, 47.0, 40.0, 12.0, 0)
+    mask = _masks([inside, approach, (0, 2, 157.0, 150.0, 12.0, 0)])
+    assert mask[0] == SHIELD_UNSTALL.tolist()  # inside: accelerates out
+    assert mask[1] == SHIELD_YIELD.tolist()  # Decel_M (1.9 m/s² needed) still stops it before the line: both brakings allowed
+    assert mask[2] == FREE
+    # the same approach 25 m before the line: only Decel_L stops it
+    assert _masks([inside, (0, 1, 32.0, 25.0, 12.0, 0)])[1] == SHIELD_BRAKE_HARD.tolist()
+    # a follower on the occupant's own road is car following's business; unless the occupant crawls (their paths through
+    # the junction may part, and SUMO sees a leader only on the same path)
+    follower = (0, 0, 47.0, 40.0, 12.0, 0)
+    assert _masks([inside, follower])[1] == FREE
+    assert _masks([(0, 0, 3.0, 0.0, 2.0, 1), follower])[1] == SHIELD_YIELD.tolist()
+
+
+def test_a_vehicle_with_no_conflict_may_not_stop_by_its_own_choice():
+    # alone at their junctions: stopped -> must accelerate; at 6 m/s it may hold but not brake below SHIELD_STALL_MPS (5);
+    # at 12 m/s Decel_L (-> 7 m/s) is allowed; 3 has no junction ahead (its last road): untouched
+    mask = _masks([(0, 0, 17.0, 10.0, 0.0, 0), (1, 1, 57.0, 50.0, 6.0, 0), (2, 2, 57.0, 50.0, 12.0, 0), (-1, 3, 0.0, 0.0, 0.0, 0)])
+    assert mask == [SHIELD_UNSTALL.tolist(), [False, False, True, True, True], FREE, FREE]
+
+
+def test_the_earlier_arrival_goes_and_the_later_one_yields():
+    # 0 and 1 reach junction 0's centre from different roads 0.4 s apart, both still able to stop: the earlier goes
+    mask = _masks([(0, 0, 47.0, 40.0, 12.0, 0), (0, 1, 52.0, 45.0, 12.0, 0)])
+    assert mask[0] == SHIELD_UNSTALL.tolist() and mask[1] == SHIELD_YIELD.tolist()
+    # tie: the first in the list goes
+    assert [m[0] for m in _masks([(0, 0, 47.0, 40.0, 12.0, 0), (0, 1, 47.0, 40.0, 12.0, 0)])] == [False, True]
+    # a vehicle that can no longer stop before the line goes before an earlier one that still can (which brakes hard)
+    committed = _masks([(0, 0, 52.0, 45.0, 20.0, 0), (0, 1, 22.0, 15.0, 10.0, 0)])
+    assert committed[0] == SHIELD_UNSTALL.tolist() and committed[1] == SHIELD_BRAKE_HARD.tolist()
+    # a stopped vehicle's arrival is its move-off time, not d / v: 2 m before the line it goes before one 60 m out at 15 m/s
+    stopped = _masks([(0, 0, 9.0, 2.0, 0.0, 0), (0, 1, 67.0, 60.0, 15.0, 0)])
+    assert stopped[0] == SHIELD_UNSTALL.tolist() and stopped[1] == SHIELD_YIELD.tolist()
+
+
+def test_look_ahead_rows_yield_to_vehicles_with_no_junction_before_theirs():
+    # vehicle 0 is 10 m before junction 0 and then drives to junction 1 (look-ahead row: 32 m before its line), where
+    # vehicle 1 arrives a little later, directly: 1 goes, 0 brakes; without the look-ahead row both would go on
+    rows = [(0, 0, 17.0, 10.0, 12.0, 0), (1, 6, 45.0, 37.0, 12.0, 0), (1, 5, 40.0, 32.0, 12.0, 0)]
+    mask = _masks(rows, ahead_of=[0])
+    assert mask == [SHIELD_BRAKE_HARD.tolist(), SHIELD_UNSTALL.tolist()]
+    assert _masks(rows[:2]) == [FREE, FREE]
+
+
+def test_route_table_places_the_junction_centres_along_the_route(tmp_path):
+    net = artificial_network(2, tmp_path / "sc2.net.xml")  # two junctions 200 m apart
+    index, sumo_net = NetIndex(str(net)), read_net(net)
+    through = [e.getID() for e in sumo_net.getEdges()]
+    # a route across both junctions: in at a dead end, through the road between them, out at the other side
+    middle = next(e for e in sumo_net.getEdges() if e.getFromNode().getType() != "dead_end" and e.getToNode().getType() != "dead_end")
+    first = next(e for e in middle.getFromNode().getIncoming() if e.getFromNode().getType() == "dead_end" and
+                 abs(e.getFromNode().getCoord()[1] - middle.getFromNode().getCoord()[1]) < 1)
+    last = next(e for e in middle.getToNode().getOutgoing() if e.getToNode().getType() == "dead_end" and
+                abs(e.getToNode().getCoord()[1] - middle.getToNode().getCoord()[1]) < 1)
+    assert middle.getID() in through
+    table = route_table(str(net), index, {"r": [first.getID(), middle.getID(), last.getID()]})
+    gap = np.linalg.norm(np.subtract(middle.getToNode().getCoord(), middle.getFromNode().getCoord()))
+    assert table.centre_m[0, 1] - table.centre_m[0, 0] == pytest.approx(gap, abs=0.5)
+    assert table.junction[0].tolist() == [index.j_index[middle.getFromNode().getID()], index.j_index[middle.getToNode().getID()], -1]
+    assert 0.0 < table.stop_to_centre_m[0, 1] < 15.0 and set(table.code) == {"r:car", "r:heavy"}
+
+
+def _constant_policy(agents, action):
+    """Every route agent picks `action` whatever the state."""
+    n = len(agents)
+    b2 = np.zeros((n, 5), np.float32)
+    b2[:, action] = 1.0
+    return {"w1": np.zeros((n, 6, 128), np.float32), "b1": np.zeros((n, 128), np.float32), "w2": np.zeros((n, 128, 5), np.float32), "b2": b2}
+
+
+def test_shield_prevents_the_forced_crossing_and_the_stall(tmp_path, sc1_net):
+    agents = ["r000:car", "r001:car"]
+    cross = crossing_copy(tmp_path / "cross", sc1_net)  # two cars that meet in the junction if both hold their speed
+    hold = [run_episode(EpisodeJob(cross, "col", agents, _constant_policy(agents, 2), 0.0, 0, 2, shield=s)).metrics for s in (False, True)]
+    assert hold[0]["collisions"] == 1
+    assert hold[1]["collisions"] == 0 and hold[1]["arrived"] == 2 and hold[1]["success"]
+    lone = crossing_copy(tmp_path / "turn", sc1_net, turn=True)  # one car alone: a policy that always brakes stops it for good
+    brake = [run_episode(EpisodeJob(lone, "col", ["r001:car"], _constant_policy(["r001:car"], 0), 0.0, 0, 1, shield=s)).metrics for s in (False, True)]
+    assert brake[0]["teleports"] == 1 and not brake[0]["success"]  # SUMO teleports it after 120 s standing
+    assert brake[1]["teleports"] == 0 and brake[1]["success"]
+
+
+def test_without_the_arrival_window_the_forced_crossing_collides(tmp_path, sc1_net, monkeypatch):
+    # what prevents the collision above is the arrival-time rule: with a zero window (only vehicles already inside the
+    # junction count) both cars reach it together and collide, shield on
+    monkeypatch.setattr(E, "SHIELD_WINDOW_S", 0.0)
+    agents = ["r000:car", "r001:car"]
+    m = run_episode(EpisodeJob(crossing_copy(tmp_path / "cross", sc1_net), "col", agents, _constant_policy(agents, 2), 0.0, 0, 2, shield=True)).metrics
+    assert m["collisions"] == 1

@@ -145,6 +145,11 @@ class AppLearnParams:
     # (docs/applearn.md, fourth investigation); 0 = the thesis's DQN target
     advantage_learning: float = 0.9
 
+    def __post_init__(self):
+        shares = (self.start_anywhere_fraction, self.route_start_fraction, self.goal_start_fraction)
+        if min(shares) < 0 or sum(shares) > 1:  # past 1 the last kinds would silently never be drawn (mix_starts)
+            raise ValueError(f"training start shares (anywhere, route, final approach) = {shares}: each >= 0, together <= 1")
+
 
 # goal offset (in steps) seen by the DQN through tanh(offset / scale): fine near the goal, coarse far away
 GOAL_OFFSET_SCALES_STEPS = (10.0, 100.0)
@@ -416,6 +421,25 @@ def _load_state(path: Path, kind: str) -> dict:
 
 
 # ---------------------------------------------------------------------------------- training (Algorithm 7)
+def mix_starts(rng: np.random.Generator, n: int, params: AppLearnParams, route: Route, altitude, firsts: StartStates,
+               anywhere: StartStates) -> tuple[StartStates, np.ndarray]:
+    """n training start states and their kind: 0 a random expert's first point, 1 (start_anywhere_fraction) any expert
+    point, 2 (route_start_fraction) a point along the experts' route, 3 (goal_start_fraction) one on its final approach
+    (a few of those fall inside the goal disc: one-step successes, harmless)."""
+    u = rng.random(n)
+    lon, lat = route.sample(rng, n)
+    ts = firsts.ts_us[rng.integers(0, len(firsts), n)]
+    parts = [firsts.take(rng.integers(0, len(firsts), n)), anywhere.take(rng.integers(0, len(anywhere), n)),
+             StartStates(lon, lat, altitude.predict(lon, lat), ts)]
+    if params.goal_start_fraction:  # drawn only when used: the other starts keep their random stream
+        lon, lat = route.sample(rng, n, last_km=GOAL_START_WIDTHS * route.width_km)
+        parts.append(StartStates(lon, lat, altitude.predict(lon, lat), ts))
+    chosen = StartStates.concat(parts)
+    bounds = np.cumsum([params.route_start_fraction, params.start_anywhere_fraction, params.goal_start_fraction])
+    kind = np.select([u < bounds[0], u < bounds[1], u < bounds[2]], [2, 1, 3], 0)
+    return chosen.take(kind * n + np.arange(n)), kind
+
+
 def train_applearn(
     tracks: pl.DataFrame, weather: pl.DataFrame, params: AppLearnParams, seed: int,
     log=None,
@@ -442,20 +466,7 @@ def train_applearn(
     firsts, anywhere = StartStates.first_points(tracks), StartStates.all_points(tracks)
 
     def pick_starts(n: int) -> StartStates:
-        """n start states: a random expert's first point, or (start_anywhere_fraction) any expert point, or
-        (route_start_fraction) a point along the experts' route, or (goal_start_fraction) one on its final approach."""
-        u = rng.random(n)
-        lon, lat = route.sample(rng, n)
-        ts = firsts.ts_us[rng.integers(0, len(firsts), n)]
-        parts = [firsts.take(rng.integers(0, len(firsts), n)), anywhere.take(rng.integers(0, len(anywhere), n)),
-                 StartStates(lon, lat, altitude.predict(lon, lat), ts)]
-        if params.goal_start_fraction:  # drawn only when used: the other starts keep their random stream
-            lon, lat = route.sample(rng, n, last_km=GOAL_START_WIDTHS * route.width_km)
-            parts.append(StartStates(lon, lat, altitude.predict(lon, lat), ts))
-        chosen = StartStates.concat(parts)
-        bounds = np.cumsum([params.route_start_fraction, params.start_anywhere_fraction, params.goal_start_fraction])
-        kind = np.select([u < bounds[0], u < bounds[1], u < bounds[2]], [2, 1, 3], 0)
-        return chosen.take(kind * n + np.arange(n))
+        return mix_starts(rng, n, params, route, altitude, firsts, anywhere)[0]
 
     memory = Replay(params.buffer_size, model.n_inputs, params.n_envs)
     obs = env.reset(pick_starts(params.n_envs))

@@ -15,6 +15,7 @@ from models.trajectory.applearn import (
     _dqn_update,
     demo_or_paper,
     max_margin_weights,
+    mix_starts,
     n_step_returns,
     train_applearn,
 )
@@ -193,6 +194,32 @@ def test_saved_model_reloads_and_acts_identically(cluster, trained, tmp_path):
     obs = model.env(weather).reset(StartStates.all_points(train))
     assert np.array_equal(model.policy(obs), again.policy(obs))
     assert np.array_equal(model.w, again.w) and again.params == model.params
+
+
+def test_training_starts_mix_the_four_kinds_in_the_shipped_shares(cluster, trained):
+    train, _, _ = cluster
+    model, _ = trained
+    route, params = model.route, demo_or_paper("demo")
+    firsts, anywhere = StartStates.first_points(train), StartStates.all_points(train)
+    starts, kind = mix_starts(np.random.default_rng(0), 20_000, params, route, model.altitude, firsts, anywhere)
+    shares = np.bincount(kind, minlength=4) / len(kind)
+    expected = [1 - params.start_anywhere_fraction - params.route_start_fraction - params.goal_start_fraction,
+                params.start_anywhere_fraction, params.route_start_fraction, params.goal_start_fraction]
+    assert shares == pytest.approx(expected, abs=0.015)
+    pts = np.zeros((len(kind), 7))
+    pts[:, 0], pts[:, 1] = starts.lon, starts.lat
+    _, left_km = route.locate(pts)
+    final, along = kind == 3, kind == 2
+    # final-approach starts lie on the route's last 8 σ and never past the goal; route starts cover the whole route
+    assert left_km[final].max() <= 8 * route.width_km + 1e-6 and (route.beyond_goal_km(pts[final]) <= 1e-6).all()
+    assert left_km[along].max() > 0.9 * route.length_km
+    assert np.isin(starts.lon[kind == 0], firsts.lon).all()
+    # without final-approach starts the other kinds are drawn exactly as before they existed
+    off = replace(params, goal_start_fraction=0.0)
+    a, ka = mix_starts(np.random.default_rng(1), 500, off, route, model.altitude, firsts, anywhere)
+    assert not (ka == 3).any() and np.isfinite(a.lon).all()
+    with pytest.raises(ValueError, match="together <= 1"):
+        replace(params, route_start_fraction=0.5)
 
 
 def test_same_seed_same_numbers_and_reward_scale_chosen_without_test_flights(cluster, tmp_path):

@@ -160,10 +160,10 @@ def shield_masks(junction: np.ndarray, road: np.ndarray, centre_dist_m: np.ndarr
     # before the line: a replay, a heavy vehicle braking at 2 m/s² from 17.5 m/s, 60 m out, entered the junction at
     # 7.5 m/s into a car crawling through it); first in all its conflicts of a row, or inside: clears
     needed_mps2 = speed**2 / (2 * np.maximum(stop_dist_m - speed * SHIELD_REACTION_S, 0.1))
-    yields, hard, clears = np.zeros(n, bool), np.zeros(n, bool), np.zeros(n, bool)
-    np.logical_or.at(yields, owner, deciding & behind)
-    np.logical_or.at(hard, owner, deciding & behind & (needed_mps2 > SHIELD_MEDIUM_BRAKE_MPS2))
-    np.logical_or.at(clears, owner, (internal | (approaching & conflict.any(axis=1) & ~behind)) & ~ahead)
+    yields, hard = np.zeros(n, bool), np.zeros(n, bool)
+    yields[owner[deciding & behind]] = True
+    hard[owner[deciding & behind & (needed_mps2 > SHIELD_MEDIUM_BRAKE_MPS2)]] = True
+    clears = (internal | (approaching & conflict.any(axis=1) & ~behind))[:n]  # own rows only: the first n
     v, active = speed[:n], active[:n]
     # with nobody to yield to, no braking or holding that leaves the vehicle below SHIELD_STALL_MPS (a replay: a policy that
     # braked to 0 at every second outside any conflict held a whole road at 0.7 m/s for minutes)
@@ -434,7 +434,7 @@ class UrbanParallelEnv(ParallelEnv):
         route = np.array([table.code[route_agent(v)] for v in snap.ids], int)
         edge = np.minimum(snap.route_index[:, None] + np.arange(1, SHIELD_LOOKAHEAD_JUNCTIONS + 1), table.junction.shape[1] - 1)
         ahead_m = centre_dist[:, None] + table.centre_m[route[:, None], edge] - table.centre_m[route, snap.route_index][:, None]
-        ahead_j = np.where(edge > snap.route_index[:, None], table.junction[route[:, None], edge], -1)
+        ahead_j = table.junction[route[:, None], edge]  # a clamped edge is a route's last (or padding): junction -1
         keep = (junction[:, None] >= 0) & (ahead_j >= 0) & (ahead_m <= SHIELD_LOOKAHEAD_M)
         owner, col = np.nonzero(keep)
         e = edge[owner, col]

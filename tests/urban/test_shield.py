@@ -70,14 +70,12 @@ def test_look_ahead_rows_yield_to_vehicles_with_no_junction_before_theirs():
 def test_route_table_places_the_junction_centres_along_the_route(tmp_path):
     net = artificial_network(2, tmp_path / "sc2.net.xml")  # two junctions 200 m apart
     index, sumo_net = NetIndex(str(net)), read_net(net)
-    through = [e.getID() for e in sumo_net.getEdges()]
     # a route across both junctions: in at a dead end, through the road between them, out at the other side
     middle = next(e for e in sumo_net.getEdges() if e.getFromNode().getType() != "dead_end" and e.getToNode().getType() != "dead_end")
     first = next(e for e in middle.getFromNode().getIncoming() if e.getFromNode().getType() == "dead_end" and
                  abs(e.getFromNode().getCoord()[1] - middle.getFromNode().getCoord()[1]) < 1)
     last = next(e for e in middle.getToNode().getOutgoing() if e.getToNode().getType() == "dead_end" and
                 abs(e.getToNode().getCoord()[1] - middle.getToNode().getCoord()[1]) < 1)
-    assert middle.getID() in through
     table = route_table(str(net), index, {"r": [first.getID(), middle.getID(), last.getID()]})
     gap = np.linalg.norm(np.subtract(middle.getToNode().getCoord(), middle.getFromNode().getCoord()))
     assert table.centre_m[0, 1] - table.centre_m[0, 0] == pytest.approx(gap, abs=0.5)

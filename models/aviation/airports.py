@@ -19,7 +19,7 @@ import numpy as np
 import polars as pl
 from scipy.spatial import cKDTree
 
-from models.aviation.order import in_flight_order
+from models.aviation.order import in_flight_order, runs
 
 EARTH_RADIUS_NM = 3440.065
 SEARCH_RADIUS_NM = 300.0
@@ -111,9 +111,8 @@ def flights_table(tracks: pl.DataFrame) -> pl.DataFrame:
     """One row per flight with origin/destination (and the distance to them) from its end points."""
     src = in_flight_order(tracks)
     # flights are contiguous runs of rows: their end points are gathered by position, no grouping needed
-    run = src["flight_id"].rle_id().to_numpy()
-    start = np.flatnonzero(np.r_[True, run[1:] != run[:-1]]) if len(run) else np.zeros(0, dtype=np.int64)
-    end = np.r_[start[1:], len(run)][: len(start)] - 1
+    _, start = runs(src["flight_id"])
+    end = np.r_[start[1:], src.height][: len(start)] - 1
     lat, lon, alt = (src[c].to_numpy() for c in ("lat", "lon", "alt_m"))
     ends = src.select("flight_id", "callsign", "icao24", first_ts="ts")[start].with_columns(
         last_ts=src["ts"].gather(end), n_points=pl.Series(end - start + 1, dtype=pl.Int64),

@@ -17,11 +17,13 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
+from models.aviation.order import runs
+from models.aviation.resample import EARTH_RADIUS_M
+
 FT = 0.3048
 KT = 1852.0 / 3600.0
 FPM = FT / 60.0
 UNIT_SAMPLE_ROWS = 50_000
-EARTH_RADIUS_M = 6_371_000.0
 TS_DTYPE = pl.Datetime("us", "UTC")
 
 
@@ -187,10 +189,8 @@ def _tidy_names(names: pl.Series, lower: bool) -> tuple[pl.Series, pl.Series]:
     Both come from the distinct names of the runs of equal rows: state vectors arrive in runs of one aircraft
     (the bundled file: 528,432 rows, 265 runs), and hashing a few hundred run values instead of every row is
     ~10x cheaper; the rows then only gather from the runs."""
-    run = names.rle_id()
-    r = run.to_numpy()
-    starts = np.flatnonzero(np.r_[True, r[1:] != r[:-1]])
-    in_runs = len(starts) * 4 < len(r)  # else (e.g. rows sorted by time) the rows are their own values
+    run, starts = runs(names)
+    in_runs = len(starts) * 4 < len(names)  # else (e.g. rows sorted by time) the rows are their own values
     values = names.gather(starts) if in_runs else names
     distinct = values.unique().drop_nulls()
     tidy = distinct.str.strip_chars()

@@ -1,5 +1,6 @@
 """Row order shared by the track transforms: grouped by flight, in time order within a flight."""
 
+import numpy as np
 import polars as pl
 
 
@@ -10,3 +11,10 @@ def in_flight_order(df: pl.DataFrame) -> pl.DataFrame:
         ((pl.col("ts").diff() > pl.duration(microseconds=0)) | (fid != fid.shift(1))).all()
     ).item()
     return df if ordered else df.sort("flight_id", "ts")
+
+
+def runs(values: pl.Series) -> tuple[np.ndarray, np.ndarray]:
+    """(run id of every row, first row of every run) for the runs of equal consecutive values (e.g. a flight's rows)."""
+    run = values.rle_id().to_numpy()
+    starts = np.flatnonzero(np.r_[True, run[1:] != run[:-1]]) if len(run) else np.zeros(0, dtype=np.int64)
+    return run, starts

@@ -10,7 +10,7 @@ the next, and one binary search of the grid in that axis serves every column.
 import numpy as np
 import polars as pl
 
-from models.aviation.order import in_flight_order
+from models.aviation.order import in_flight_order, runs
 
 EARTH_RADIUS_M = 6_371_000.0
 US = 1_000_000
@@ -32,9 +32,8 @@ def resample(tracks: pl.DataFrame, dt_s: float = 20.0) -> pl.DataFrame:
     dt_us = int(round(dt_s * US))
     src = in_flight_order(tracks)
     # flights are contiguous after the sort: run ids number them without hashing the string ids
-    idx = src["flight_id"].rle_id().to_numpy()
+    idx, starts = runs(src["flight_id"])
     t = src["ts"].dt.epoch("us").to_numpy()
-    starts = np.flatnonzero(np.r_[True, idx[1:] != idx[:-1]]) if len(idx) else np.zeros(0, dtype=np.int64)
     ids = src["flight_id"].gather(starts)
     first_us = t[starts]
     last_us = t[np.r_[starts[1:] - 1, len(t) - 1]] if len(t) else t

@@ -40,7 +40,7 @@ class IndependentQ:
         row = agents * self.q.shape[1]
         cell = 2 * (row + state[agents]) + action[agents]  # Q_i(s_i, a_i) in the flat table: 1-d indexing is ~3x faster
         q = self.q.reshape(-1, copy=False)  # a view (q is created C-contiguous); copy=False raises rather than update a copy
-        target = reward[agents] + self.gamma * row_max(self.q.reshape(-1, 2).take(row + next_state[agents], axis=0))  # Eq 5.6
+        target = reward[agents] + self.gamma * row_max(self._q(agents, next_state[agents]))  # Eq 5.6
         old = q[cell]
         q[cell] = old + self.lr * (target - old)
 

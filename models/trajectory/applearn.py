@@ -591,13 +591,14 @@ def _dqn_update(model: AppLearnModel, target_net: QNetwork, optimiser, memory: R
     reward += np.where(status == SUCCESS, p.success_reward, np.where(status != RUNNING, p.failure_reward, 0.0))
     reward += (1.0 if p.progress_reward else p.gamma) * memory.potential2[rows] - memory.potential[rows]
     returns, bootstrap = n_step_returns(p.reward_scale * reward, status, p.gamma)
+    x_first = torch.from_numpy(memory.x[first])
     with torch.no_grad():
         q_next = target_net(torch.from_numpy(memory.x2[rows[:, -1]])).max(dim=1).values
         target = torch.from_numpy(returns.astype(np.float32)) + p.gamma ** rows.shape[1] * torch.from_numpy(bootstrap.astype(np.float32)) * q_next
         if p.advantage_learning:
-            q_now = target_net(torch.from_numpy(memory.x[first]))
+            q_now = target_net(x_first)
             target -= p.advantage_learning * (q_now.max(dim=1).values - q_now.gather(1, action).squeeze(1))
-    q = model.q_net(torch.from_numpy(memory.x[first])).gather(1, action).squeeze(1)
+    q = model.q_net(x_first).gather(1, action).squeeze(1)
     loss = torch.nn.functional.mse_loss(q, target)
     optimiser.zero_grad()
     loss.backward()

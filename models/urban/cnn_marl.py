@@ -23,7 +23,6 @@ parallel episodes are models.urban.col_marl's; this file holds what differs):
 """
 
 import functools
-import re
 from pathlib import Path
 
 import gymnasium
@@ -140,23 +139,22 @@ def reward(speed: np.ndarray, fveh_dist: np.ndarray, conflict: np.ndarray) -> np
 class Ch3Env(UrbanParallelEnv):
     """The env of models.urban.env with chapter 3's actions, state and reward (same PettingZoo API)."""
 
-    def __init__(self, files, variant: str = "ch3", sumo_seed: int = 0, record: bool = False, leader_guard: bool = False):
+    def __init__(self, files, variant: str = "ch3", sumo_seed: int = 0, record: bool = False, leader_guard: bool = False, shield: bool = False):
+        if shield:
+            raise ValueError("chapter 3's env has no safety layer (shield=True is for the col/ind variants)")
         super().__init__(files, "ind", sumo_seed, record, leader_guard=False)  # its own speed mode below, IDM vehicle types
         self.variant, self.speed_mode = "ch3", SPEED_MODE_LIMITED
         self.positions = True  # the collision matrix needs where everyone is
         self._obs_space = gymnasium.spaces.Box(-np.inf, np.inf, (STATE_DIM,), np.float32)
         self._act_space = gymnasium.spaces.Discrete(len(SPEEDS_MPS))
         self.geo = geometry(files.net)
-        text = Path(files.routes).read_text()
-        self.routes = {rid: edges.split() for rid, edges in re.findall(r'<route id="([^"]+)" edges="([^"]*)"', text)}
 
     def _apply(self, ids: list, action: np.ndarray, speed: np.ndarray) -> None:
         for v, a in zip(ids, action):
             self.sim.ls.vehicle.setSpeed(v, SPEEDS_MPS[a])
 
-    def _state_reward(self, snap, junction, road_code, dist):
+    def _state_reward(self, snap, junction, road_code, internal, route, dist):
         geo = self.geo
-        internal = self.sim.index.lane_internal[snap.lane_code]  # the lane table's "inside a junction" (sim.NetIndex)
         xy = np.column_stack([snap.x, snap.y])
         entry = np.where(internal[:, None], xy, np.array([geo.lane_end.get(ln, (0.0, 0.0)) for ln in snap.lane]).reshape(-1, 2))
         direction = np.array([geo.lane_dir.get(ln, (0.0, 0.0)) for ln in snap.lane]).reshape(-1, 2)

@@ -130,8 +130,7 @@ def run_episode(job: EpisodeJob) -> EpisodeResult:
     """Roll out one episode with ε-greedy route agents; returns every vehicle's transitions."""
     rng = np.random.default_rng(job.seed)
     spec = kit(job.variant)
-    shield = {"shield": True} if job.shield else {}  # chapter 3's env has no safety layer
-    env = spec.env(job.files, job.variant, sumo_seed=job.seed, record=job.record, leader_guard=job.leader_guard, **shield)
+    env = spec.env(job.files, job.variant, sumo_seed=job.seed, record=job.record, leader_guard=job.leader_guard, shield=job.shield)
     n_actions = env.action_space(None).n
     index = {a: i for i, a in enumerate(job.agents)}
     buf = {k: [] for k in ("agent_idx", "state", "action", "reward", "next_state", "done")}

@@ -79,23 +79,31 @@ _CAR_MPS2, _HEAVY_MPS2 = np.array(ACTIONS_MPS2["car"]), np.array(ACTIONS_MPS2["h
 _ALL_ACTIONS = np.ones(len(_CAR_MPS2), bool)
 
 
+def _rivals(junction: np.ndarray, other: np.ndarray) -> np.ndarray:
+    """[n, n]: both vehicles have the same junction ahead (or are inside it; -1 = none) and `other` holds for the pair."""
+    active = junction >= 0
+    return (junction[:, None] == junction[None, :]) & active[:, None] & active[None, :] & other
+
+
+def _stop_m(v: np.ndarray, travel_m: float | np.ndarray = 0.0) -> np.ndarray:
+    """travel_m plus the distance to stop from speed v: a reaction sub-step, then SHIELD_BRAKE_MPS2 (one sum, left to right)."""
+    return travel_m + v * SHIELD_REACTION_S + v**2 / (2 * SHIELD_BRAKE_MPS2)
+
+
 def conflict_matrix(junction: np.ndarray, road: np.ndarray, centre_dist_m: np.ndarray, speed: np.ndarray):
-    """(inter_time [n], conflict [n, n]): vehicle i is predicted to collide with j (Eq 4.1-4.2): both approach (or are
+    """conflict [n, n]: vehicle i is predicted to collide with j (Eq 4.1-4.2): both approach (or are
     inside) the same junction from different roads and reach its centre less than INTER_TIME_S apart.
     junction = -1 for vehicles with no junction ahead; road = integer code of the vehicle's road; centre_dist_m =
     inter_dist, the distance to the junction's centre (Eq 4.1)."""
     inter_time = centre_dist_m / np.maximum(speed, 0.1)
-    active = junction >= 0
-    same_junction = (junction[:, None] == junction[None, :]) & active[:, None] & active[None, :]
-    other_road = road[:, None] != road[None, :]
     close_in_time = np.abs(inter_time[:, None] - inter_time[None, :]) < INTER_TIME_S
-    return inter_time, same_junction & other_road & close_in_time
+    return _rivals(junction, road[:, None] != road[None, :]) & close_in_time
 
 
 def junction_terms(junction: np.ndarray, road: np.ndarray, centre_dist_m: np.ndarray, speed: np.ndarray, incoming_lanes: np.ndarray):
     """col_term and density of every vehicle (Eq 4.2), vectorised over all vehicles and junctions (arguments: conflict_matrix)."""
     active = junction >= 0
-    conflicts = conflict_matrix(junction, road, centre_dist_m, speed)[1].sum(axis=1)
+    conflicts = conflict_matrix(junction, road, centre_dist_m, speed).sum(axis=1)
     # density (§4.2.1): "the number of vehicles that the ego vehicle is predicted to collide with", per incoming lane
     density = np.where(active, conflicts / incoming_lanes[np.maximum(junction, 0)], 0.0)
     return (conflicts > 0).astype(float), density
@@ -132,11 +140,11 @@ def shield_masks(junction: np.ndarray, road: np.ndarray, centre_dist_m: np.ndarr
     ahead = np.arange(rows) >= n
     active = junction >= 0
     approaching = active & ~internal
-    stopping_m = speed * SHIELD_REACTION_S + speed**2 / (2 * SHIELD_BRAKE_MPS2)
+    stopping_m = _stop_m(speed)
     committed = approaching & (stop_dist_m < stopping_m)  # enters the junction whatever it does now
     # after a second at the strongest acceleration it could not stop any more: the last second to decide is now
     v1 = speed + SHIELD_ACCEL_MPS2 * ACTION_S
-    reach_m = speed * ACTION_S + SHIELD_ACCEL_MPS2 * ACTION_S**2 / 2 + v1 * SHIELD_REACTION_S + v1**2 / (2 * SHIELD_BRAKE_MPS2)
+    reach_m = _stop_m(v1, speed * ACTION_S + SHIELD_ACCEL_MPS2 * ACTION_S**2 / 2)
     deciding = approaching & (stop_dist_m <= reach_m + SHIELD_MARGIN_M)
     # arrival time at the centre accelerating at SHIELD_MOVE_OFF_MPS2, as a vehicle that goes is made to (d / v would put a
     # slow vehicle seconds after a fast one that it actually meets: a replay, both crept into the junction at once)
@@ -151,7 +159,7 @@ def shield_masks(junction: np.ndarray, road: np.ndarray, centre_dist_m: np.ndarr
     # other way drove into one that crawled through the junction at 0.7 m/s)
     blocking = internal & (speed < SHIELD_CRAWL_MPS)
     other_road = (road[:, None] != road[None, :]) | blocking[None, :]
-    rivals = (junction[:, None] == junction[None, :]) & active[:, None] & active[None, :] & other_road & (owner[:, None] != owner[None, :])
+    rivals = _rivals(junction, other_road) & (owner[:, None] != owner[None, :])
     close = internal[None, :] | (np.abs(arrival_s[:, None] - arrival_s[None, :]) < SHIELD_WINDOW_S)
     conflict = rivals & close & approaching[:, None]  # [i, k]: approaching i conflicts with k (inside, or close in time)
     before = place[None, :] < place[:, None]  # [i, k]: k goes before i
@@ -243,6 +251,11 @@ class RouteTable:
     stop_to_centre_m: np.ndarray
 
 
+def route_rows(routes: dict) -> dict:
+    """route agent ('route:class') -> its route's row in per-route tables (routes: route id -> its edges, in file order)."""
+    return {f"{rid}:{cls}": r for r, rid in enumerate(routes) for cls in ACTIONS_MPS2}
+
+
 def route_table(net_path: str, index, routes: dict) -> RouteTable:
     """routes: route id -> its edges. Distances between junction centres: to the next edge's start plus its lane 0."""
     gap_out = _net_geometry(net_path)[1]
@@ -255,8 +268,7 @@ def route_table(net_path: str, index, routes: dict) -> RouteTable:
         road[r, : len(edges)] = index.lane_road[codes]
         stop_to_centre[r, : len(edges)] = index.lane_centre_m[codes] - index.lane_len[codes]
         centre[r, : len(edges)] = np.cumsum(index.lane_centre_m[codes] + np.array([0.0] + [gap_out[e] for e in edges[1:]]))
-    code = {f"{rid}:{cls}": r for r, rid in enumerate(routes) for cls in ACTIONS_MPS2}
-    return RouteTable(code, junction, road, centre, stop_to_centre)
+    return RouteTable(route_rows(routes), junction, road, centre, stop_to_centre)
 
 
 @functools.lru_cache(maxsize=65536)
@@ -282,7 +294,8 @@ class UrbanParallelEnv(ParallelEnv):
         text = Path(files.routes).read_text()
         self.possible_agents = re.findall(r'<vehicle id="([^"]+)"', text)
         self.routes = {rid: edges.split() for rid, edges in re.findall(r'<route id="([^"]+)" edges="([^"]*)"', text)}
-        self.route_edges = {f"{rid}:{cls}": len(edges) for rid, edges in self.routes.items() for cls in ACTIONS_MPS2}  # route agent -> edges
+        self.route_row = route_rows(self.routes)
+        self.route_edges = np.array([len(edges) for edges in self.routes.values()])  # per route row
         self.vmax = files.max_speed_mps
         dim = STATE_DIM[variant]
         self._obs_space = gymnasium.spaces.Box(-1.0, np.inf, (dim,), np.float32)
@@ -343,9 +356,11 @@ class UrbanParallelEnv(ParallelEnv):
         return obs, rewards, terminated, truncated, self._infos(obs)
 
     def _infos(self, vehicles) -> dict:
+        infos = {v: {"route_agent": route_agent(v)} for v in vehicles}
         if self.shield:
-            return {v: {"route_agent": route_agent(v), "action_mask": self.action_masks.get(v, _ALL_ACTIONS)} for v in vehicles}
-        return {v: {"route_agent": route_agent(v)} for v in vehicles}
+            for v, info in infos.items():
+                info["action_mask"] = self.action_masks.get(v, _ALL_ACTIONS)
+        return infos
 
     def _wait_for_agents(self) -> dict:
         """Simulate until some vehicle needs a decision or the episode is over (PettingZoo ends an episode
@@ -372,11 +387,11 @@ class UrbanParallelEnv(ParallelEnv):
             return {}, {}, set()
         # the network's facts of each vehicle's lane: road, junction ahead (or inside), internal edge?
         road_code, junction, internal = idx.lane_road[snap.lane_code], idx.lane_junction[snap.lane_code], idx.lane_internal[snap.lane_code]
-        n_edges = np.array([self.route_edges[route_agent(v)] for v in snap.ids])
-        last_road = (snap.route_index >= n_edges - 1) & ~internal
+        route = np.fromiter((self.route_row[route_agent(v)] for v in snap.ids), int, n)
+        last_road = (snap.route_index >= self.route_edges[route] - 1) & ~internal
         junction[last_road] = -1
         dist = np.where(internal, 0.0, np.maximum(snap.lane_len - snap.lane_pos, 0.0))
-        state, r = self._state_reward(snap, junction, road_code, dist)
+        state, r = self._state_reward(snap, junction, road_code, internal, route, dist)
         goal = set()
         for i in np.flatnonzero(last_road):
             v = snap.ids[i]
@@ -410,28 +425,27 @@ class UrbanParallelEnv(ParallelEnv):
         scale = np.array([[self.vmax], [POS_SCALE_M], [LEADER_SCALE_M], [self.vmax]])
         return np.where(terms >= 0, terms / scale, -1.0).T
 
-    def _state_reward(self, snap, junction: np.ndarray, road_code: np.ndarray, dist: np.ndarray):
-        """State (Eq 4.2; i-MARL: its first 4 terms) and non-terminal reward of every vehicle."""
+    def _state_reward(self, snap, junction: np.ndarray, road_code: np.ndarray, internal: np.ndarray, route: np.ndarray, dist: np.ndarray):
+        """State (Eq 4.2; i-MARL: its first 4 terms) and non-terminal reward of every vehicle (route: route rows)."""
         index = self.sim.index
         centre_dist = index.centre_dist(snap.lane_code, snap.lane_pos)
         col_term, density = junction_terms(junction, road_code, centre_dist, snap.speed, index.incoming_lanes)
         if self.shield:
-            self._masks = self._shield(snap, junction, road_code, centre_dist, dist)
+            self._masks = self._shield(snap, junction, road_code, internal, route, centre_dist, dist)
         state = np.empty((len(dist), STATE_DIM[self.variant]), np.float32)  # filled column-wise: no stacking, one cast
         state[:, :4] = self.individual_state(snap, dist)
         if state.shape[1] == 6:
             state[:, 4], state[:, 5] = col_term, density
         return state, reward(self.variant, snap.speed, self.vmax, snap.leader_dist, col_term)
 
-    def _shield(self, snap, junction: np.ndarray, road_code: np.ndarray, centre_dist: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    def _shield(self, snap, junction: np.ndarray, road_code: np.ndarray, internal: np.ndarray, route: np.ndarray, centre_dist: np.ndarray,
+                dist: np.ndarray) -> np.ndarray:
         """shield_masks of every vehicle: its own row (inside a junction: with the road it entered from) and look-ahead
         rows for the next junctions of its route."""
         index, table = self.sim.index, self._route_table
         if len(self._entry) < len(index.lane_road):  # lanes first seen during the episode are normal lanes: their own road
             self._entry = np.concatenate([self._entry, index.lane_road[len(self._entry):]])
-        internal = index.lane_internal[snap.lane_code]
         road = np.where(internal, self._entry[snap.lane_code], road_code)
-        route = np.array([table.code[route_agent(v)] for v in snap.ids], int)
         edge = np.minimum(snap.route_index[:, None] + np.arange(1, SHIELD_LOOKAHEAD_JUNCTIONS + 1), table.junction.shape[1] - 1)
         ahead_m = centre_dist[:, None] + table.centre_m[route[:, None], edge] - table.centre_m[route, snap.route_index][:, None]
         ahead_j = table.junction[route[:, None], edge]  # a clamped edge is a route's last (or padding): junction -1

@@ -131,7 +131,6 @@ class Snapshot:
     lane_len: np.ndarray
     lane: list
     lane_code: np.ndarray  # NetIndex lane code of `lane`: index into its lane_* tables
-    road: list
     route_index: np.ndarray
     x: np.ndarray
     y: np.ndarray
@@ -254,7 +253,6 @@ class Simulation:
             lane_len=index.lane_len[code],
             lane=lane,
             lane_code=code,
-            road=list(map(index.lane_road_id.__getitem__, code.tolist())),
             route_index=route_index.astype(int),
             x=x,
             y=y,

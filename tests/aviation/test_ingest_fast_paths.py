@@ -27,17 +27,24 @@ def test_speed_spike_bound_matches_the_exact_rule():
     n = 60_000
     ac = np.sort(rng.integers(0, 40, n)).astype(np.uint32)
     ts = np.cumsum(rng.choice([0, 1, 1, 5, 20], n)) * 1_000_000
-    lat = rng.uniform(-89.9, 89.9, n)
-    speed = rng.choice([300.0, 349.9, 350.0, 350.1, 400.0, 2_000.0], n)  # m/s to the next point, around the limit
+    first = np.r_[True, ac[1:] != ac[:-1]]
+
+    def walk(start: np.ndarray, steps: np.ndarray) -> np.ndarray:
+        """Each aircraft's track: its start value plus the cumulated steps of its earlier legs."""
+        c = np.cumsum(np.r_[0.0, steps[:-1]])
+        return start[ac] + c - c[np.flatnonzero(first)][ac]
+
+    # every leg flown at a speed around the limit (m/s), in any direction, from each aircraft's own start
+    speed = rng.choice([300.0, 349.9, 350.0, 350.1, 400.0, 2_000.0], n)
     bearing = rng.uniform(0, 2 * np.pi, n)
     step = np.r_[np.diff(ts) / 1e6, 1.0].clip(min=1.0) * speed / 6_371_000.0
-    lat = np.clip(lat, -89.9, 89.9)
-    lon = rng.uniform(-180, 180, n)
-    lon[1:] = lon[:-1] + np.degrees(step[:-1] * np.sin(bearing[:-1]) / np.cos(np.radians(lat[:-1])))
+    lat = np.clip(walk(rng.uniform(-85.0, 85.0, 40), np.degrees(step * np.cos(bearing))), -89.9, 89.9)
+    lon = walk(rng.choice([-179.99, 0.0, 120.0, 179.99], 40), np.degrees(step * np.sin(bearing) / np.cos(np.radians(lat))))
     lon = (lon + 180.0) % 360.0 - 180.0
     lon[::997] = 179.999  # antimeridian neighbours
     lon[1::997] = -179.999
-    alt = rng.normal(8_000, 3_000, n)
+    # altitude steps around the climb limit (m/s, times the leg's seconds)
+    alt = walk(np.full(40, 8_000.0), rng.choice([-150.0, -99.9, 0.0, 99.9, 100.1], n) * np.r_[np.diff(ts) / 1e6, 1.0].clip(min=1.0))
     rows = pl.DataFrame({"_ac": ac, "ts": pl.Series(ts).cast(pl.Datetime("us", "UTC")), "lat": lat, "lon": lon, "alt_m": alt})
     got = SpeedSpike(350.0, 100.0)(rows)
     want = _spike_oracle(rows, 350.0, 100.0)

@@ -111,12 +111,13 @@ def test_vectorised_vs_loop(cap95, bench_results, method, n_vec, n_loop):
     per_flight = PerFlightEpisodes(cap95).run_episode  # its per-flight regrouping of the entries is made once, untimed
     per_flight_step = lambda learner, eps, rng: per_flight(learner, GROUND, eps, rng)  # noqa: E731
     b.warn_if_busy(f"DCB {method} vectorised vs loop")
-    d_vec = _episodes_per_s(vectorised, make_vec(cap95.n_flights, n_states), n_loop)[1]
-    for run in (vectorised, per_flight_step):
-        assert np.array_equal(d_vec, _episodes_per_s(run, make_loop(cap95.n_flights, n_states), n_loop)[1]), "the baselines must make the same decisions"
+    d_vec = _episodes_per_s(vectorised, make_vec(cap95.n_flights, n_states), n_loop)[1]  # also the warm-up
     vec, _, vec_learner_s = _episodes_per_s(vectorised, make_vec(cap95.n_flights, n_states), n_vec)
-    loop, _, loop_learner_s = _episodes_per_s(vectorised, make_loop(cap95.n_flights, n_states), n_loop)
-    whole, _, whole_learner_s = _episodes_per_s(per_flight_step, make_loop(cap95.n_flights, n_states), n_loop)
+    # the timed baselines run the same seeded episodes as d_vec's: their last delays must be d_vec
+    loop, d_loop, loop_learner_s = _episodes_per_s(vectorised, make_loop(cap95.n_flights, n_states), n_loop)
+    whole, d_whole, whole_learner_s = _episodes_per_s(per_flight_step, make_loop(cap95.n_flights, n_states), n_loop)
+    for d in (d_loop, d_whole):
+        assert np.array_equal(d_vec, d), "the baselines must make the same decisions"
     # held to the target: the per-flight implementation of the whole step (what a non-vectorised learner is).
     # Beside it, as before: only the learner's action values + Q update looped inside the vectorised step
     # (CMARL's learner includes building the peer graph, vectorised in every variant), the learner part alone,

@@ -107,7 +107,7 @@ def test_same_seed_same_episode(tmp_path, sc1_net):
 
 
 def test_snapshot_reads_what_the_getters_say(tmp_path, sc1_net):
-    # the snapshot derives each vehicle's road from its lane id and skips x, y and accel unless asked for them
+    # each vehicle's road follows from its lane code (the lane table) and x, y and accel are skipped unless asked for
     sim = Simulation(make_copy(tmp_path / "c", sc1_net, 20, 40.0)[0], model="Krauss", seed=0)
     sim.start()
     try:
@@ -116,17 +116,18 @@ def test_snapshot_reads_what_the_getters_say(tmp_path, sc1_net):
             sim.advance(1.0)
             full, light = sim.snapshot(), sim.snapshot(positions=False)
             veh = sim.ls.vehicle
-            assert full.road == [veh.getRoadID(v) for v in full.ids]
+            road = [sim.index.lane_road_id[c] for c in full.lane_code]
+            assert road == [veh.getRoadID(v) for v in full.ids]
             assert full.lane_code.tolist() == [sim.index.lane_codes[veh.getLaneID(v)] for v in full.ids]
             assert full.speed.tolist() == [veh.getSpeed(v) for v in full.ids]
             leaders = [veh.getLeader(v, LEADER_LOOKAHEAD_M) for v in full.ids]  # None: no leader
             assert full.leader_dist.tolist() == [max(ld[1] + MIN_GAP_M, 0.0) if ld else -1.0 for ld in leaders]
             assert full.x.tolist() == [veh.getPosition(v)[0] for v in full.ids]
             assert full.accel.tolist() == [veh.getAcceleration(v) for v in full.ids]
-            seen_internal |= any(r.startswith(":") for r in full.road)
+            seen_internal |= any(r.startswith(":") for r in road)
             for k in ("speed", "lane_pos", "lane_len", "route_index", "leader_dist", "leader_speed", "fuel_mgps"):
                 assert np.array_equal(getattr(full, k), getattr(light, k)), k
-            assert full.ids == light.ids and full.lane == light.lane and full.road == light.road
+            assert full.ids == light.ids and full.lane == light.lane and np.array_equal(full.lane_code, light.lane_code)
             assert np.isnan(light.x).all() and np.isnan(light.accel).all()
         assert seen_internal  # a vehicle inside the junction: its road is the internal edge
     finally:

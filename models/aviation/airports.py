@@ -116,7 +116,6 @@ def flights_table(tracks: pl.DataFrame) -> pl.DataFrame:
     lat, lon, alt = (src[c].to_numpy() for c in ("lat", "lon", "alt_m"))
     ends = src.select("flight_id", "callsign", "icao24", first_ts="ts")[start].with_columns(
         last_ts=src["ts"].gather(end), n_points=pl.Series(end - start + 1, dtype=pl.Int64),
-        lat0=pl.Series(lat[start]), lon0=pl.Series(lon[start]), latn=pl.Series(lat[end]), lonn=pl.Series(lon[end]),
     )
     # heading from the positions themselves (10 points in; none on shorter flights): reported track can be
     # missing at the ends
@@ -137,14 +136,15 @@ def flights_table(tracks: pl.DataFrame) -> pl.DataFrame:
         for c in ("origin", "destination")
     )
     ap = airports_table().select("icao", "lat", "lon")
-    voted = voted.join(ap.rename({"icao": "origin", "lat": "o_lat", "lon": "o_lon"}), on="origin", how="left").join(
-        ap.rename({"icao": "destination", "lat": "d_lat", "lon": "d_lon"}), on="destination", how="left"
+    # maintain_order: the rows stay the flights of `e`, whose end points are measured against their airports
+    voted = voted.join(ap.rename({"icao": "origin", "lat": "o_lat", "lon": "o_lon"}), on="origin", how="left", maintain_order="left").join(
+        ap.rename({"icao": "destination", "lat": "d_lat", "lon": "d_lon"}), on="destination", how="left", maintain_order="left"
     )
-    v = {c: voted[c].to_numpy() for c in ("lat0", "lon0", "o_lat", "o_lon", "latn", "lonn", "d_lat", "d_lon")}
+    v = {c: voted[c].to_numpy() for c in ("o_lat", "o_lon", "d_lat", "d_lon")}
     return voted.with_columns(
         route=pl.concat_str("origin", "destination", separator="-"),
-        origin_distance_nm=pl.Series(_distance_nm(v["lat0"], v["lon0"], v["o_lat"], v["o_lon"])),
-        destination_distance_nm=pl.Series(_distance_nm(v["latn"], v["lonn"], v["d_lat"], v["d_lon"])),
+        origin_distance_nm=pl.Series(_distance_nm(e["lat0"], e["lon0"], v["o_lat"], v["o_lon"])),
+        destination_distance_nm=pl.Series(_distance_nm(e["latn"], e["lonn"], v["d_lat"], v["d_lon"])),
     ).select(
         "flight_id", "callsign", "icao24", "origin", "destination", "route", "origin_distance_nm",
         "destination_distance_nm", "first_ts", "last_ts", "n_points",

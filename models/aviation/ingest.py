@@ -361,15 +361,14 @@ def _first_match(frame: pl.DataFrame, stage: list[tuple[str, pl.Expr | SpeedSpik
     return frame.select(first).to_series().to_numpy()
 
 
-def _split_flights(kept: pl.DataFrame, raw: pl.DataFrame, cfg: IngestConfig) -> tuple[np.ndarray, pl.Series, pl.DataFrame]:
-    """Number the flights of the kept rows (in (aircraft, ts) order): a new one at an aircraft's first point,
-    after a long gap or a callsign change; name them callsign_icao24_YYYYMMDDTHHMM from their first point
-    (names are built once per flight).
+def _split_flights(kept: pl.DataFrame, row: np.ndarray, raw: pl.DataFrame, cfg: IngestConfig) -> tuple[pl.Series, pl.DataFrame]:
+    """Split the kept rows (in (aircraft, ts) order; `row`: their row_index) into flights, contiguous runs of
+    rows: a new one at an aircraft's first point, after a long gap or a callsign change; name them
+    callsign_icao24_YYYYMMDDTHHMM from their first point (names are built once per flight).
 
-    Returns (per kept row: its flight number and the raw row whose callsign it takes: its own or, where it
-    has none, the aircraft's last one before it; one row per flight: flight_id, flight_rank = rank of the
+    Returns (per kept row: the raw row whose callsign it takes: its own or, where it has none, the
+    aircraft's last one before it; one row per flight, in row order: flight_id, flight_rank = rank of the
     name, points)."""
-    row = kept["row_index"].to_numpy()
     code = raw["_cs"].gather(kept["row_index"])
     callsign_row = kept["row_index"]
     if code.null_count():  # a window per aircraft, only when some callsign is missing
@@ -384,7 +383,6 @@ def _split_flights(kept: pl.DataFrame, raw: pl.DataFrame, cfg: IngestConfig) -> 
     renamed = known[1:] & known[:-1] & (code[1:] != code[:-1])
     # [: len(row)]: no flight at all when every row was rejected
     new = np.r_[True, (ac[1:] != ac[:-1]) | (np.diff(ts) / 1e6 > cfg.gap_split_s) | renamed][: len(row)]
-    segment = np.cumsum(new) - 1
     first = np.flatnonzero(new)
     firsts = pl.DataFrame(
         {"callsign": raw["callsign"].gather(callsign_row.gather(first)), "icao24": raw["icao24"].gather(row[first]), "ts": kept["ts"].gather(first)}
@@ -394,7 +392,7 @@ def _split_flights(kept: pl.DataFrame, raw: pl.DataFrame, cfg: IngestConfig) -> 
         points=pl.Series(np.diff(np.r_[first, len(row)])),
     )
     # the rank of the name orders the flights by (flight_id, ts) comparing integers instead of strings
-    return segment, callsign_row, flights.with_columns(flight_rank=pl.col("flight_id").rank("dense"))
+    return callsign_row, flights.with_columns(flight_rank=pl.col("flight_id").rank("dense"))
 
 
 def _runs(first: np.ndarray, length: np.ndarray) -> np.ndarray:
@@ -454,14 +452,14 @@ def clean(raw: pl.DataFrame, source: str, cfg: IngestConfig = IngestConfig()) ->
         kept = kept.select(c for c in kept.columns if c in later)
         if not ok.all():  # a filter copies every column: skip it when the stage rejects nothing
             kept = kept.filter(pl.Series(ok))
-    segment, callsign_row, flights = _split_flights(kept, raw, cfg)
+    row = kept["row_index"].to_numpy()
+    callsign_row, flights = _split_flights(kept, row, raw, cfg)
     # rows are in (aircraft, ts) order and a flight_id names one aircraft, so the flights (contiguous runs of
     # rows) put in the order of their names, stably, give (flight_id, ts) order: one gather of whole runs
     # instead of sorting the rows, which also leaves out the runs too short to keep
     points = flights["points"].to_numpy()
     first = np.cumsum(points) - points
     short = points < cfg.min_points
-    row = kept["row_index"].to_numpy()
     reason[row[_runs(first[short], points[short])]] = len(names)
     order = np.flatnonzero(~short)
     order = order[np.argsort(flights["flight_rank"].to_numpy()[order], kind="stable")]
@@ -470,7 +468,7 @@ def clean(raw: pl.DataFrame, source: str, cfg: IngestConfig = IngestConfig()) ->
     callsign = raw["callsign"].gather(callsign_row.gather(final))
     if callsign.null_count():  # a flight without a callsign keeps its icao24 as one: downstream keys are never null
         callsign = callsign.fill_null(tracks["icao24"])
-    tracks = tracks.with_columns(flight_id=flights["flight_id"].gather(segment[final]), callsign=callsign).select(
+    tracks = tracks.with_columns(flight_id=flights["flight_id"].gather(np.repeat(order, points[order])), callsign=callsign).select(
         "flight_id", "ts", "icao24", "callsign", "lat", "lon", "alt_m", "groundspeed_mps", "track_deg", "vertical_rate_mps"
     )
     # rejects in row order: the positions of the nonzero reasons are already sorted

@@ -26,12 +26,39 @@ def test_same_seed_same_policy_and_log(tmp_path, sc1_net):
     assert ra[0]["epsilon"] == 0.9 and ra[-1]["epsilon"] < 0.9
 
 
-def test_training_under_the_safety_layer_reaches_the_episodes(tmp_path, sc1_net):
+def test_training_under_the_safety_layer_acts_and_bootstraps_within_the_masks(tmp_path, sc1_net):
     files, routes = make_copy(tmp_path / "c", sc1_net, 15, 60.0)
     agents = [f"{r['route_id']}:{c}" for r in routes for c in ("car", "heavy")]
+    params = {k: v.detach().numpy().copy() for k, v in RouteAgentsQ(len(agents), 6, torch.Generator().manual_seed(0)).state_dict().items()}
+    masked_somewhere = False
+    for eps in (1.0, 0.0):  # exploring draws among the allowed actions, greedy takes the best allowed one
+        t = run_episode(EpisodeJob(files, "col", agents, params, eps, 3, 15, shield=True)).transitions
+        assert len(t["action"]) and t["allowed"][np.arange(len(t["action"])), t["action"]].all()
+        assert t["next_allowed"].shape == t["allowed"].shape
+        masked_somewhere |= not t["allowed"].all()
+    assert masked_somewhere  # the layer did forbid actions: the check above could have failed
     (free, _), (shielded, rows) = (_train(files, agents, "col", 0, episodes=2, gradient_steps=2, shield=s) for s in (False, True))
     assert not np.array_equal(free["w1"], shielded["w1"])  # masked actions: other transitions, other weights
     assert len(rows) == 2 * len(agents)
+
+
+def test_masked_bootstrap_takes_the_best_allowed_next_action():
+    # y = r + γ Q_target(s', argmax over the allowed a of Q(s', a)): with one allowed action per row, that action
+    n, b = 2, 6
+    g = torch.Generator().manual_seed(0)
+    batch = [torch.rand(n, b, 6, generator=g), torch.randint(0, 5, (n, b), generator=g), torch.rand(n, b, generator=g),
+             torch.rand(n, b, 6, generator=g), torch.rand(n, b, 5, generator=g), torch.zeros(n, b), torch.tensor([True, True])]
+    q = RouteAgentsQ(n, 6, torch.Generator().manual_seed(1))
+    with torch.no_grad():
+        q_taken = q(batch[0]).gather(2, batch[1][..., None]).squeeze(2)
+        greedy = q(batch[3]).argmax(dim=2)
+    only = (greedy + 1) % 5  # never the unmasked argmax
+    allowed = torch.nn.functional.one_hot(only, 5).bool()
+    losses = [dqn_update(q, torch.optim.SGD(q.parameters(), lr=0.0), (*batch, mask)) for mask in (allowed, None)]
+    for pick, loss in zip((only, greedy), losses):
+        y = batch[2] + col_marl.GAMMA * batch[4].gather(2, pick[..., None]).squeeze(2)
+        np.testing.assert_allclose(loss, ((q_taken - y) ** 2).mean(dim=1).numpy(), rtol=1e-5)
+    assert not np.allclose(losses[0], losses[1])
 
 
 def test_i_marl_sees_four_state_terms(tmp_path, sc1_net):
@@ -49,7 +76,7 @@ def test_each_route_agent_learns_only_from_its_own_data():
     opt = torch.optim.Adam(q.parameters(), lr=1e-3)
     n = 8
     batch = (torch.rand(3, n, 6), torch.randint(0, 5, (3, n)), torch.rand(3, n), torch.rand(3, n, 6), torch.rand(3, n, 5), torch.zeros(3, n),
-             torch.tensor([True, False, True]))
+             torch.tensor([True, False, True]), None)
     loss = dqn_update(q, opt, batch)
     assert np.isnan(loss[1]) and np.isfinite(loss[0])
     after = q.state_dict()
@@ -76,7 +103,7 @@ def test_stacked_q_is_the_tanh_network_and_chunked_gradients_equal_one_pass(monk
     torch.testing.assert_close(q(x).double(), reference, rtol=1e-5, atol=1e-6)
     torch.testing.assert_close(q(x[1:3], slice(1, 3)), q(x)[1:3])
     batch = (x, torch.randint(0, 5, (5, 7)), torch.rand(5, 7), torch.rand(5, 7, 6), torch.rand(5, 7, 5), torch.zeros(5, 7),
-             torch.tensor([True, True, False, True, True]))
+             torch.tensor([True, True, False, True, True]), None)
     grads, losses = [], []
     for rows in (10**6, 14):  # one pass over the stack, then 2 agents per pass
         monkeypatch.setattr(col_marl, "CHUNK_ROWS", rows)
@@ -96,7 +123,7 @@ def test_gradient_steps_in_threads_are_the_same_bit_for_bit(monkeypatch):
     monkeypatch.setattr(col_marl, "CHUNK_ROWS", 2 * b)  # 2 agents per chunk: 3 chunks
     g = torch.Generator().manual_seed(0)
     batch = (torch.rand(n, b, 6, generator=g), torch.randint(0, 5, (n, b), generator=g), torch.rand(n, b, generator=g),
-             torch.rand(n, b, 6, generator=g), torch.rand(n, b, 5, generator=g), torch.zeros(n, b), torch.tensor([True] * 5 + [False]))
+             torch.rand(n, b, 6, generator=g), torch.rand(n, b, 5, generator=g), torch.zeros(n, b), torch.tensor([True] * 5 + [False]), None)
     out = []
     for threads in (1, 2, 3):
         net = RouteAgentsQ(n, 6, torch.Generator().manual_seed(0))

@@ -44,7 +44,7 @@ import numpy as np
 from pettingzoo import ParallelEnv
 
 from models.urban.network import read_net
-from models.urban.scenarios import ACTIONS_MPS2
+from models.urban.scenarios import ACTIONS_MPS2, MIN_GAP_M, VEHICLE_TYPES
 from models.urban.sim import ACTION_S, SPEED_MODE_CAR_FOLLOWING, SPEED_MODE_FREE, ScenarioFiles, Simulation
 
 GOAL_REWARD = 1000.0  # L of Eq 4.3 (not given; "not sensitive"): a second of delay must cost more ((1 - γ) L = 10) than Eq 4.6 saves by stopping (c2 + f(v) ≤ 6)
@@ -69,6 +69,9 @@ SHIELD_MOVE_OFF_MPS2 = 2.5  # arrival times at the centre are estimated accelera
 SHIELD_REACTION_S = 0.2  # a new acceleration acts from the next sub-step
 SHIELD_MARGIN_M = 5.0  # slack on the distance the layer still lets a vehicle decide freely
 SHIELD_CRAWL_MPS = 5.0  # a vehicle this slow inside a junction blocks it for the vehicles of its own road too
+SHIELD_PATIENCE_S = 30.0  # a vehicle stopped longer than this moves up the order by the excess (no starving at a busy junction)
+# room a vehicle needs on its exit road behind a slow leader to enter a junction: the longest vehicle and its standstill gap
+SHIELD_EXIT_ROOM_M = max(t.length_m for t in VEHICLE_TYPES.values()) + MIN_GAP_M
 # the layer also looks at the junctions after the next one on a vehicle's route: those within this distance, at most this many
 SHIELD_LOOKAHEAD_M, SHIELD_LOOKAHEAD_JUNCTIONS = 250.0, 3
 # actions the safety layer leaves to a vehicle (indices of Table 4.1's accelerations, strongest braking first)
@@ -110,7 +113,8 @@ def junction_terms(junction: np.ndarray, road: np.ndarray, centre_dist_m: np.nda
 
 
 def shield_masks(junction: np.ndarray, road: np.ndarray, centre_dist_m: np.ndarray, stop_dist_m: np.ndarray, speed: np.ndarray,
-                 internal: np.ndarray, ahead_of: np.ndarray | None = None) -> np.ndarray:
+                 internal: np.ndarray, ahead_of: np.ndarray | None = None, exit_room_m: np.ndarray | None = None,
+                 waited_s: np.ndarray | None = None) -> np.ndarray:
     """Allowed actions [n, 5] of n vehicles under the optional safety layer (not the thesis; an evaluation switch,
     reported separately).
 
@@ -119,7 +123,9 @@ def shield_masks(junction: np.ndarray, road: np.ndarray, centre_dist_m: np.ndarr
     SHIELD_LOOKAHEAD_M: at 30 m/s a vehicle must decide ~180 m before a junction, further than the short roads of a
     real network). junction: -1 for none; road: the road a vehicle enters the junction from (for one inside, the road
     it entered from: its followers on that road are SUMO's car following's business, unless it crawls);
-    centre_dist_m: to the junction's centre (Eq 4.1); stop_dist_m: to its stop line (0 inside); internal: inside.
+    centre_dist_m: to the junction's centre (Eq 4.1); stop_dist_m: to its stop line (0 inside); internal: inside;
+    exit_room_m (the first n rows; None: room everywhere): free length on the road after the junction, up to a slow vehicle
+    on it (np.inf: none); waited_s (the first n rows): how long each vehicle has been standing (SUMO's waiting time).
 
     Each junction is reserved in this order: vehicles inside it, then vehicles that can no longer stop before its stop
     line (they enter whatever they do), then by arrival time at the centre, accelerating from the current speed (a
@@ -132,7 +138,13 @@ def shield_masks(junction: np.ndarray, road: np.ndarray, centre_dist_m: np.ndarr
     each other's next junction, each is first at its own). A vehicle first in all its conflicts at its next junction,
     or inside one, must accelerate (braking there blocks the junction for everyone); not yielding, a vehicle may not
     brake or hold below SHIELD_STALL_MPS. SUMO's car following still holds every vehicle behind its leader (a vehicle
-    made to accelerate stops behind a stopped one)."""
+    made to accelerate stops behind a stopped one).
+
+    A vehicle whose exit road has no room for it (less than SHIELD_EXIT_ROOM_M) loses its place while it can still stop:
+    it yields, and nobody waits for it (SUMO does not let it enter a junction it could not leave; first in the order it
+    would hold every other road of the junction, and their queues the junctions behind them: a gridlock of Sc4 x2).
+    A vehicle standing longer than SHIELD_PATIENCE_S counts as arriving that much earlier (a replay of Sc4: stopped 8 m
+    before the line, its move-off time lost to every moving vehicle and to every stopped one nearer its line, for 120 s)."""
     rows = len(speed)
     ahead_of = np.zeros(0, int) if ahead_of is None else ahead_of
     n = rows - len(ahead_of)
@@ -146,12 +158,19 @@ def shield_masks(junction: np.ndarray, road: np.ndarray, centre_dist_m: np.ndarr
     v1 = speed + SHIELD_ACCEL_MPS2 * ACTION_S
     reach_m = _stop_m(v1, speed * ACTION_S + SHIELD_ACCEL_MPS2 * ACTION_S**2 / 2)
     deciding = approaching & (stop_dist_m <= reach_m + SHIELD_MARGIN_M)
+    no_exit = np.zeros(rows, bool)
+    if exit_room_m is not None:
+        no_exit[:n] = (deciding & ~committed)[:n] & (exit_room_m < SHIELD_EXIT_ROOM_M)
     # arrival time at the centre accelerating at SHIELD_MOVE_OFF_MPS2, as a vehicle that goes is made to (d / v would put a
     # slow vehicle seconds after a fast one that it actually meets: a replay, both crept into the junction at once)
     arrival_s = (np.sqrt(speed**2 + 2 * SHIELD_MOVE_OFF_MPS2 * centre_dist_m) - speed) / SHIELD_MOVE_OFF_MPS2
-    # place in the junction's order: rank (0 inside, 1 committed, 2 others, 3 look-ahead), then arrival time, then list order
+    # place in the junction's order: rank (0 inside, 1 committed, 2 others, 3 look-ahead), then arrival time less the
+    # waiting beyond patience, then list order
     rank = np.where(internal, 0, np.where(committed, 1, np.where(ahead, 3, 2)))
-    order = np.lexsort((np.arange(rows), arrival_s, rank))
+    credit_s = np.zeros(rows)
+    if waited_s is not None:
+        credit_s[:n] = np.maximum(waited_s - SHIELD_PATIENCE_S, 0.0)
+    order = np.lexsort((np.arange(rows), arrival_s - credit_s, rank))
     place = np.empty(rows, int)
     place[order] = np.arange(rows)
     # vehicles of the same road are left to SUMO's car following, except behind one crawling inside the junction: it is
@@ -161,7 +180,7 @@ def shield_masks(junction: np.ndarray, road: np.ndarray, centre_dist_m: np.ndarr
     other_road = (road[:, None] != road[None, :]) | blocking[None, :]
     rivals = _rivals(junction, other_road) & (owner[:, None] != owner[None, :])
     close = internal[None, :] | (np.abs(arrival_s[:, None] - arrival_s[None, :]) < SHIELD_WINDOW_S)
-    conflict = rivals & close & approaching[:, None]  # [i, k]: approaching i conflicts with k (inside, or close in time)
+    conflict = rivals & close & approaching[:, None] & ~no_exit[None, :]  # [i, k]: approaching i conflicts with k (inside, or close in time)
     before = place[None, :] < place[:, None]  # [i, k]: k goes before i
     behind = (conflict & before).any(axis=1)
     # per vehicle (over its rows): yields anywhere; yields hard anywhere (Decel_M only where it still stops the vehicle
@@ -170,8 +189,9 @@ def shield_masks(junction: np.ndarray, road: np.ndarray, centre_dist_m: np.ndarr
     needed_mps2 = speed**2 / (2 * np.maximum(stop_dist_m - speed * SHIELD_REACTION_S, 0.1))
     yields, hard = np.zeros(n, bool), np.zeros(n, bool)
     yields[owner[deciding & behind]] = True
-    hard[owner[deciding & behind & (needed_mps2 > SHIELD_MEDIUM_BRAKE_MPS2)]] = True
-    clears = (internal | (approaching & conflict.any(axis=1) & ~behind))[:n]  # own rows only: the first n
+    yields[no_exit[:n]] = True
+    hard[owner[deciding & (behind | no_exit) & (needed_mps2 > SHIELD_MEDIUM_BRAKE_MPS2)]] = True
+    clears = (internal | (approaching & conflict.any(axis=1) & ~behind & ~no_exit))[:n]  # own rows only: the first n
     v, active = speed[:n], active[:n]
     # with nobody to yield to, no braking or holding that leaves the vehicle below SHIELD_STALL_MPS (a replay: a policy that
     # braked to 0 at every second outside any conflict held a whole road at 0.7 m/s for minutes)
@@ -242,13 +262,14 @@ def entry_roads(net_path: str, index) -> np.ndarray:
 class RouteTable:
     """Per route agent (row, `code`) and edge of its route (column), for the safety layer's look-ahead: the junction at
     the edge's end (-1 on the last edge: the goal), the road code, the position of that junction's centre along the
-    route (m) and the distance from the edge's stop line to it."""
+    route (m), the distance from the edge's stop line to it and from it to the next edge's start."""
 
     code: dict
     junction: np.ndarray
     road: np.ndarray
     centre_m: np.ndarray
     stop_to_centre_m: np.ndarray
+    centre_to_exit_m: np.ndarray
 
 
 def route_rows(routes: dict) -> dict:
@@ -261,14 +282,16 @@ def route_table(net_path: str, index, routes: dict) -> RouteTable:
     gap_out = _net_geometry(net_path)[1]
     shape = (len(routes), max(len(e) for e in routes.values()))
     junction, road = np.full(shape, -1), np.full(shape, -1)
-    centre, stop_to_centre = np.zeros(shape), np.zeros(shape)
+    centre, stop_to_centre, centre_to_exit = np.zeros(shape), np.zeros(shape), np.zeros(shape)
     for r, edges in enumerate(routes.values()):
         codes = np.array([index.lane_codes[f"{e}_0"] for e in edges])
         junction[r, : len(edges) - 1] = index.lane_junction[codes[:-1]]
         road[r, : len(edges)] = index.lane_road[codes]
         stop_to_centre[r, : len(edges)] = index.lane_centre_m[codes] - index.lane_len[codes]
-        centre[r, : len(edges)] = np.cumsum(index.lane_centre_m[codes] + np.array([0.0] + [gap_out[e] for e in edges[1:]]))
-    return RouteTable(route_rows(routes), junction, road, centre, stop_to_centre)
+        gaps = np.array([gap_out[e] for e in edges[1:]])
+        centre_to_exit[r, : len(edges) - 1] = gaps
+        centre[r, : len(edges)] = np.cumsum(index.lane_centre_m[codes] + np.concatenate([[0.0], gaps]))
+    return RouteTable(route_rows(routes), junction, road, centre, stop_to_centre, centre_to_exit)
 
 
 @functools.lru_cache(maxsize=65536)
@@ -440,8 +463,8 @@ class UrbanParallelEnv(ParallelEnv):
 
     def _shield(self, snap, junction: np.ndarray, road_code: np.ndarray, internal: np.ndarray, route: np.ndarray, centre_dist: np.ndarray,
                 dist: np.ndarray) -> np.ndarray:
-        """shield_masks of every vehicle: its own row (inside a junction: with the road it entered from) and look-ahead
-        rows for the next junctions of its route."""
+        """shield_masks of every vehicle: its own row (inside a junction: with the road it entered from), look-ahead rows
+        for the next junctions of its route, the room on its exit road and how long it has stood."""
         index, table = self.sim.index, self._route_table
         if len(self._entry) < len(index.lane_road):  # lanes first seen during the episode are normal lanes: their own road
             self._entry = np.concatenate([self._entry, index.lane_road[len(self._entry):]])
@@ -452,10 +475,17 @@ class UrbanParallelEnv(ParallelEnv):
         keep = (junction[:, None] >= 0) & (ahead_j >= 0) & (ahead_m <= SHIELD_LOOKAHEAD_M)
         owner, col = np.nonzero(keep)
         e = edge[owner, col]
+        # room on the exit road: up to a slow leader past the stop line (getLeader looks along the route, across the junction)
+        past_line = (snap.leader_dist > dist) & (snap.leader_speed < SHIELD_CRAWL_MPS)
+        exit_start_m = centre_dist + table.centre_to_exit_m[route, snap.route_index]
+        exit_room = np.where(past_line & ~internal, snap.leader_dist - exit_start_m, np.inf)
+        # waiting counts for the first vehicle of each road only: a follower waits for its leader, not for the junction
+        head = (snap.leader_dist < 0) | (snap.leader_dist > dist)
+        waited = np.where(head, np.fromiter(map(self.sim.ls.vehicle.getWaitingTime, snap.ids), float, len(snap.ids)), 0.0)
         return shield_masks(
             np.concatenate([junction, ahead_j[keep]]), np.concatenate([road, table.road[route[owner], e]]),
             np.concatenate([centre_dist, ahead_m[keep]]), np.concatenate([dist, ahead_m[keep] - table.stop_to_centre_m[route[owner], e]]),
-            np.concatenate([snap.speed, snap.speed[owner]]), np.concatenate([internal, np.zeros(len(owner), bool)]), owner,
+            np.concatenate([snap.speed, snap.speed[owner]]), np.concatenate([internal, np.zeros(len(owner), bool)]), owner, exit_room, waited,
         )
 
     def close(self):

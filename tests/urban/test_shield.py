@@ -1,23 +1,26 @@
-"""The optional safety layer (env.shield_masks): hand-built junction situations, the look-ahead's route table on a real
-two-junction network, and real SUMO episodes where it removes a forced collision and a stall."""
+"""The optional safety layer (env.shield_masks): hand-built junction situations, the look-ahead's route table and the
+env's look-ahead rows on a real two-junction network, and real SUMO episodes where it removes a forced collision and a
+stall and where a car held by a full exit no longer holds the junction."""
 
 import numpy as np
 import pytest
 
 from models.urban import env as E
 from models.urban.col_marl import EpisodeJob, run_episode
-from models.urban.env import SHIELD_BRAKE_HARD, SHIELD_UNSTALL, SHIELD_YIELD, route_table, shield_masks
+from models.urban.env import SHIELD_BRAKE_HARD, SHIELD_UNSTALL, SHIELD_YIELD, UrbanParallelEnv, route_table, shield_masks
 from models.urban.network import artificial_network, read_net
-from models.urban.sim import NetIndex
+from models.urban.scenarios import vtypes_xml
+from models.urban.sim import NetIndex, ScenarioFiles
 from urban_fixtures import crossing_copy
 
 FREE = [True] * 5
 
 
-def _masks(rows, ahead_of=None):
+def _masks(rows, ahead_of=None, exit_room_m=None, waited_s=None):
     """rows: (junction, road, centre_dist_m, stop_dist_m, speed, internal) per row."""
     cols = [np.array(c) for c in zip(*rows)]
-    return shield_masks(*cols[:5], cols[5].astype(bool), None if ahead_of is None else np.array(ahead_of)).tolist()
+    ahead_of, exit_room_m, waited_s = (None if x is None else np.array(x) for x in (ahead_of, exit_room_m, waited_s))
+    return shield_masks(*cols[:5], cols[5].astype(bool), ahead_of, exit_room_m, waited_s).tolist()
 
 
 def test_a_vehicle_inside_the_junction_makes_an_approaching_one_yield():
@@ -58,6 +61,28 @@ def test_the_earlier_arrival_goes_and_the_later_one_yields():
     assert stopped[0] == SHIELD_UNSTALL.tolist() and stopped[1] == SHIELD_YIELD.tolist()
 
 
+def test_a_vehicle_whose_exit_is_full_gives_up_its_place():
+    # 0 stands at the line of junction 0 (first by arrival), 1 stands 8 m back on another road: 1 waits for 0 ...
+    rows = [(0, 0, 7.5, 0.5, 0.0, 0), (0, 1, 15.0, 8.0, 0.0, 0)]
+    assert _masks(rows) == [SHIELD_UNSTALL.tolist(), SHIELD_YIELD.tolist()]
+    # ... unless 0's exit road has no room for it (SUMO holds it at the line): then 0 waits and 1 goes (a gridlock of Sc4 x2:
+    # every junction reserved for a vehicle that could not enter it)
+    assert _masks(rows, exit_room_m=[5.0, np.inf]) == [SHIELD_YIELD.tolist(), SHIELD_UNSTALL.tolist()]
+    assert _masks(rows, exit_room_m=[E.SHIELD_EXIT_ROOM_M, np.inf]) == [SHIELD_UNSTALL.tolist(), SHIELD_YIELD.tolist()]
+    # a vehicle that can no longer stop before the line keeps its place whatever its exit (it enters anyway)
+    fast = [(0, 0, 27.0, 20.0, 20.0, 0), (0, 1, 15.0, 8.0, 0.0, 0)]
+    assert _masks(fast, exit_room_m=[5.0, np.inf]) == [SHIELD_UNSTALL.tolist(), SHIELD_YIELD.tolist()]
+
+
+def test_a_vehicle_standing_beyond_patience_goes_before_a_moving_one():
+    # 0 stands 8 m before junction 0 (move-off 3.5 s to the centre); 1 comes on another road at 12 m/s, 40 m out (3.0 s):
+    # 1 is earlier and goes, 0 waits; the same after 0 has stood for SHIELD_PATIENCE_S, but not after twice as long
+    rows = [(0, 0, 15.0, 8.0, 0.0, 0), (0, 1, 47.0, 40.0, 12.0, 0)]
+    assert _masks(rows) == [SHIELD_YIELD.tolist(), SHIELD_UNSTALL.tolist()]
+    assert _masks(rows, waited_s=[E.SHIELD_PATIENCE_S, 0.0]) == [SHIELD_YIELD.tolist(), SHIELD_UNSTALL.tolist()]
+    assert _masks(rows, waited_s=[2 * E.SHIELD_PATIENCE_S, 0.0]) == [SHIELD_UNSTALL.tolist(), SHIELD_YIELD.tolist()]
+
+
 def test_look_ahead_rows_yield_to_vehicles_with_no_junction_before_theirs():
     # vehicle 0 is 10 m before junction 0 and then drives to junction 1 (look-ahead row: 32 m before its line), where
     # vehicle 1 arrives a little later, directly: 1 goes, 0 brakes; without the look-ahead row both would go on
@@ -67,20 +92,64 @@ def test_look_ahead_rows_yield_to_vehicles_with_no_junction_before_theirs():
     assert _masks(rows[:2]) == [FREE, FREE]
 
 
-def test_route_table_places_the_junction_centres_along_the_route(tmp_path):
-    net = artificial_network(2, tmp_path / "sc2.net.xml")  # two junctions 200 m apart
-    index, sumo_net = NetIndex(str(net)), read_net(net)
-    # a route across both junctions: in at a dead end, through the road between them, out at the other side
+def _straight_across_sc2(net):
+    """Sc2's edges of a route across both junctions: in at a dead end, through the road between them, out at the other side."""
+    sumo_net = read_net(net)
     middle = next(e for e in sumo_net.getEdges() if e.getFromNode().getType() != "dead_end" and e.getToNode().getType() != "dead_end")
     first = next(e for e in middle.getFromNode().getIncoming() if e.getFromNode().getType() == "dead_end" and
                  abs(e.getFromNode().getCoord()[1] - middle.getFromNode().getCoord()[1]) < 1)
     last = next(e for e in middle.getToNode().getOutgoing() if e.getToNode().getType() == "dead_end" and
                 abs(e.getToNode().getCoord()[1] - middle.getToNode().getCoord()[1]) < 1)
+    return first, middle, last
+
+
+def test_route_table_places_the_junction_centres_along_the_route(tmp_path):
+    net = artificial_network(2, tmp_path / "sc2.net.xml")  # two junctions 200 m apart
+    index = NetIndex(str(net))
+    first, middle, last = _straight_across_sc2(net)
     table = route_table(str(net), index, {"r": [first.getID(), middle.getID(), last.getID()]})
     gap = np.linalg.norm(np.subtract(middle.getToNode().getCoord(), middle.getFromNode().getCoord()))
     assert table.centre_m[0, 1] - table.centre_m[0, 0] == pytest.approx(gap, abs=0.5)
     assert table.junction[0].tolist() == [index.j_index[middle.getFromNode().getID()], index.j_index[middle.getToNode().getID()], -1]
     assert 0.0 < table.stop_to_centre_m[0, 1] < 15.0 and set(table.code) == {"r:car", "r:heavy"}
+    # from the first junction's centre to the road between the junctions: its internal lane's reach beyond the centre
+    assert 0.0 < table.centre_to_exit_m[0, 0] < 15.0 and table.centre_to_exit_m[0, 2] == 0.0
+
+
+def test_the_env_adds_a_look_ahead_row_for_the_next_junction_within_reach(tmp_path, monkeypatch):
+    # one car through both junctions of Sc2 (centres 200 m apart): while it approaches the first, the env gives it a row
+    # for the second once that is within SHIELD_LOOKAHEAD_M, at its own distance + 200 m, with the road between them
+    net = artificial_network(2, tmp_path / "sc2.net.xml")
+    first, middle, last = _straight_across_sc2(net)
+    folder = tmp_path / "across"
+    folder.mkdir()
+    (folder / "routes.rou.xml").write_text(
+        f'<routes>\n  <route id="r000" edges="{first.getID()} {middle.getID()} {last.getID()}"/>\n'
+        '  <vehicle id="r000.car.0" type="car" route="r000" depart="0" departSpeed="10" departPos="base"/>\n</routes>\n'
+    )
+    for model in ("IDM", "Krauss"):
+        (folder / f"vtypes_{model.lower()}.add.xml").write_text(vtypes_xml(model, 40.0))
+    calls = []
+    monkeypatch.setattr(E, "shield_masks", lambda *rows: calls.append([np.copy(r) for r in rows[:7]]) or np.ones((1, 5), bool))
+    env = UrbanParallelEnv(ScenarioFiles(str(net), str(folder / "routes.rou.xml"), str(folder), 0.0, 40.0), shield=True)
+    try:
+        env.reset(seed=0)
+        index = env.sim.index
+        j1, j2 = index.j_index[middle.getFromNode().getID()], index.j_index[middle.getToNode().getID()]
+        while env.agents:
+            env.step({v: 4 for v in env.agents})
+    finally:
+        env.close()
+    approaching_j1 = [c for c in calls if c[0][0] == j1 and not c[5][0]]
+    near = [c for c in approaching_j1 if c[2][0] + 200.0 <= E.SHIELD_LOOKAHEAD_M - 1.0]
+    far = [c for c in approaching_j1 if c[2][0] + 200.0 > E.SHIELD_LOOKAHEAD_M + 1.0]
+    assert near and far
+    for junction, road, centre, stop, _, internal, ahead_of in near:
+        assert junction.tolist() == [j1, j2] and ahead_of.tolist() == [0] and not internal[1]
+        assert road[1] == index.lane_road[index.lane_codes[f"{middle.getID()}_0"]]
+        assert centre[1] - centre[0] == pytest.approx(200.0, abs=1.0) and 0.0 < centre[1] - stop[1] < 15.0
+    assert all(len(c[0]) == 1 for c in far)
+    assert all(len(c[0]) == 1 for c in calls if c[0][0] == j2)  # past the first junction: the second is its own row, then the goal
 
 
 def _constant_policy(agents, action):
@@ -110,3 +179,45 @@ def test_without_the_arrival_window_the_forced_crossing_collides(tmp_path, sc1_n
     agents = ["r000:car", "r001:car"]
     m = run_episode(EpisodeJob(crossing_copy(tmp_path / "cross", sc1_net), "col", agents, _constant_policy(agents, 2), 0.0, 0, 2, shield=True)).metrics
     assert m["collisions"] == 1
+
+
+def _blocked_exit_copy(folder, net):
+    """Sc1: a car stands 40 s on the first metres of road A0right0 (a stop), so r000's car, at the line by then, has no
+    room to enter; r001's car starts at 15 s, standing 13 m before the line on the crossing road, its exit free."""
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "routes.rou.xml").write_text(
+        '<routes>\n  <route id="r000" edges="left0A0 A0right0"/>\n  <route id="r001" edges="bottom0A0 A0top0"/>\n'
+        '  <route id="r002" edges="A0right0"/>\n'
+        '  <vehicle id="r002.car.0" type="car" route="r002" depart="0" departSpeed="0" departPos="5">'
+        '<stop lane="A0right0_0" endPos="12" duration="40"/></vehicle>\n'
+        '  <vehicle id="r000.car.1" type="car" route="r000" depart="0" departSpeed="10" departPos="base"/>\n'
+        '  <vehicle id="r001.car.2" type="car" route="r001" depart="15" departSpeed="0" departPos="180"/>\n</routes>\n'
+    )
+    for model in ("IDM", "Krauss"):
+        (folder / f"vtypes_{model.lower()}.add.xml").write_text(vtypes_xml(model, 40.0))
+    return ScenarioFiles(str(net), str(folder / "routes.rou.xml"), str(folder), 15.0, 40.0)
+
+
+def _arrivals_accelerating(files) -> dict:
+    """The "always accelerate" policy under the layer (full acceleration where allowed, else the first allowed action, as
+    run_episode's masked argmax of a constant Q does); arrival time per vehicle."""
+    env = UrbanParallelEnv(files, shield=True)
+    try:
+        _, infos = env.reset(seed=0)
+        while env.agents:
+            _, _, _, _, infos = env.step({v: 4 if infos[v]["action_mask"][4] else int(infos[v]["action_mask"].argmax()) for v in env.agents})
+        assert not env.sim.tally.collision_pairs and not env.sim.tally.teleported
+        return dict(env.sim.tally.arrive)
+    finally:
+        env.close()
+
+
+def test_a_car_held_by_a_full_exit_does_not_hold_the_junction(tmp_path, sc1_net, monkeypatch):
+    # the env's own path: exit room from SUMO's leader across the junction and the route table's centre-to-exit distance.
+    # r000's car reaches the line first and stands there until the stop ends (~44 s); r001's car crosses at once
+    files = _blocked_exit_copy(tmp_path / "blocked", sc1_net)
+    arrive = _arrivals_accelerating(files)
+    assert arrive["r001.car.2"] - 15.0 < 15.0 and arrive["r000.car.1"] > 44.0
+    # without the exit rule r001's car waits behind the reservation of the car that cannot enter
+    monkeypatch.setattr(E, "SHIELD_EXIT_ROOM_M", -np.inf)
+    assert _arrivals_accelerating(files)["r001.car.2"] > arrive["r000.car.1"]

@@ -62,7 +62,8 @@ class PerFlightEpisodes:
                 counts[base + m // 60] += 1
         state, hot, tdc, view = self._observe(level, delay, counts, [0] * p.n_flights)
         for _ in range(p.max_delay_min // step):
-            agents = [f for f in self.active if hot[f] > 0 and delay[f] + step <= p.max_delay_min]
+            # as run_episode: no MaxDelay test, at step t every delay is <= t · step, so one more step stays within it
+            agents = [f for f in self.active if hot[f] > 0]
             if not agents:
                 break
             q = learner.values(state, agents, view)

@@ -118,7 +118,7 @@ class EpisodeJob:
 
 @dataclass
 class EpisodeResult:
-    transitions: dict  # agent_idx, state, action, reward, next_state, done: arrays
+    transitions: dict  # agent_idx, state, action, reward, next_state, done (+ allowed, next_allowed under the layer): arrays
     agent_return: np.ndarray  # mean return of the vehicles of each route agent (nan: none drove)
     metrics: dict
     frames: list = field(default_factory=list)  # 1 s snapshots if recorded
@@ -232,10 +232,11 @@ class ReplayBuffers:
         n = len(self.size)
         slots = (rng.random((n, batch)) * np.maximum(self.size, 1)[:, None]).astype(np.int64)
         flat = (slots + np.arange(n)[:, None] * self.capacity).ravel()  # `take` on flat rows: 2-3x faster than a[rows, slots]
-        arrays = (self.state, self.action, self.reward, self.next_state, self.target_q, self.done)
+        masks = (self.next_allowed,) if self.next_allowed is not None else ()
         tensors = [torch.from_numpy(a.reshape(n * self.capacity, -1).take(flat, axis=0).reshape(n, batch, *a.shape[2:]))
-                   for a in arrays + ((self.next_allowed,) if self.next_allowed is not None else ())]
-        return (*tensors[:6], torch.from_numpy(self.size > 0), tensors[6] if len(tensors) > 6 else None)
+                   for a in (self.state, self.action, self.reward, self.next_state, self.target_q, self.done, *masks)]
+        next_allowed = tensors.pop() if masks else None
+        return (*tensors, torch.from_numpy(self.size > 0), next_allowed)
 
 
 @functools.lru_cache
@@ -245,7 +246,8 @@ def _learner_threads(n: int) -> ThreadPoolExecutor:
 
 def dqn_update(q: nn.Module, optimiser, batch, threads: int = 1) -> np.ndarray:
     """One double-DQN step for all route agents: y = r + γ (1 - done) Q_target(s', argmax_a Q(s', a)), with
-    Q_target(s', ·) as stored by ReplayBuffers; under the safety layer the argmax runs over the actions allowed in s'. The agents' losses are independent, so their gradients are computed
+    Q_target(s', ·) as stored by ReplayBuffers; under the safety layer the argmax runs over the actions allowed
+    in s'. The agents' losses are independent, so their gradients are computed
     CHUNK_ROWS batch rows at a time (a few agents), which keeps the hidden activations in the CPU's cache: 2x faster
     for 40 agents at batch 2,500 than one pass over the whole stack. With `threads` > 1 the chunks run concurrently in
     that many threads (torch frees the GIL in its kernels; the episode workers wait meanwhile, so their cores are

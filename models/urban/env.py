@@ -68,7 +68,9 @@ SHIELD_ACCEL_MPS2 = 3.0  # the strongest acceleration a free vehicle may hold fo
 SHIELD_MOVE_OFF_MPS2 = 2.5  # arrival times at the centre are estimated accelerating at this from the current speed
 SHIELD_REACTION_S = 0.2  # a new acceleration acts from the next sub-step
 SHIELD_MARGIN_M = 5.0  # slack on the distance the layer still lets a vehicle decide freely
-SHIELD_CRAWL_MPS = 5.0  # a vehicle this slow inside a junction blocks it for the vehicles of its own road too
+# a vehicle this slow inside a junction blocks it for the vehicles of its own road too; a leader this slow past the stop
+# line limits the room on the exit road
+SHIELD_CRAWL_MPS = 5.0
 SHIELD_PATIENCE_S = 30.0  # a vehicle stopped longer than this moves up the order by the excess (no starving at a busy junction)
 # room a vehicle needs on its exit road behind a slow leader to enter a junction: the longest vehicle and its standstill gap
 SHIELD_EXIT_ROOM_M = max(t.length_m for t in VEHICLE_TYPES.values()) + MIN_GAP_M
@@ -125,7 +127,7 @@ def shield_masks(junction: np.ndarray, road: np.ndarray, centre_dist_m: np.ndarr
     it entered from: its followers on that road are SUMO's car following's business, unless it crawls);
     centre_dist_m: to the junction's centre (Eq 4.1); stop_dist_m: to its stop line (0 inside); internal: inside;
     exit_room_m (the first n rows; None: room everywhere): free length on the road after the junction, up to a slow vehicle
-    on it (np.inf: none); waited_s (the first n rows): how long each vehicle has been standing (SUMO's waiting time).
+    on it (np.inf: none; negative: the slow vehicle is still inside the junction); waited_s (the first n rows): how long each vehicle has been standing (SUMO's waiting time).
 
     Each junction is reserved in this order: vehicles inside it, then vehicles that can no longer stop before its stop
     line (they enter whatever they do), then by arrival time at the centre, accelerating from the current speed (a

@@ -10,8 +10,8 @@ from models.urban.env import GOAL_REWARD, UrbanParallelEnv, junction_terms, rewa
 from models.urban.network import UrbanInputError, read_net
 from models.urban.sim import LEADER_LOOKAHEAD_M, NetIndex, ScenarioFiles, Simulation, run_sumo_model
 
-from models.urban.scenarios import MIN_GAP_M, vtypes_xml
-from urban_fixtures import crossing_copy, make_copy
+from models.urban.scenarios import MIN_GAP_M
+from urban_fixtures import crossing_copy, hand_copy, make_copy
 
 HOLD = 2  # index of the zero acceleration in Table 4.1
 
@@ -184,13 +184,9 @@ def test_bad_route_file_gives_one_clear_line(tmp_path, sc1_net):
 
 def _same_route_copy(folder, net, departs):
     """Cars on one straight route of Sc1 departing at `departs` (s)."""
-    folder.mkdir(parents=True, exist_ok=True)
     cars = "".join(f'  <vehicle id="r000.car.{i}" type="car" route="r000" depart="{t}" departSpeed="10" departPos="base"/>\n'
                    for i, t in enumerate(departs))
-    (folder / "routes.rou.xml").write_text(f'<routes>\n  <route id="r000" edges="left0A0 A0right0"/>\n{cars}</routes>\n')
-    for model in ("IDM", "Krauss"):
-        (folder / f"vtypes_{model.lower()}.add.xml").write_text(vtypes_xml(model, 40.0))
-    return ScenarioFiles(str(net), str(folder / "routes.rou.xml"), str(folder), float(max(departs)), 40.0)
+    return hand_copy(folder, net, f'  <route id="r000" edges="left0A0 A0right0"/>\n{cars}', float(max(departs)))
 
 
 def _run_follower_into_leader(folder, net, leader_guard: bool):

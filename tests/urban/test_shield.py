@@ -9,9 +9,8 @@ from models.urban import env as E
 from models.urban.col_marl import EpisodeJob, run_episode
 from models.urban.env import SHIELD_BRAKE_HARD, SHIELD_UNSTALL, SHIELD_YIELD, UrbanParallelEnv, route_table, shield_masks
 from models.urban.network import artificial_network, read_net
-from models.urban.scenarios import vtypes_xml
-from models.urban.sim import NetIndex, ScenarioFiles
-from urban_fixtures import crossing_copy
+from models.urban.sim import NetIndex
+from urban_fixtures import crossing_copy, hand_copy
 
 FREE = [True] * 5
 
@@ -75,12 +74,13 @@ def test_a_vehicle_whose_exit_is_full_gives_up_its_place():
 
 
 def test_a_vehicle_standing_beyond_patience_goes_before_a_moving_one():
-    # 0 stands 8 m before junction 0 (move-off 3.5 s to the centre); 1 comes on another road at 12 m/s, 40 m out (3.0 s):
-    # 1 is earlier and goes, 0 waits; the same after 0 has stood for SHIELD_PATIENCE_S, but not after twice as long
+    # 0 stands 8 m before junction 0 (move-off 3.46 s to the centre); 1 comes on another road at 12 m/s, 40 m out (2.99 s):
+    # 1 is earlier and goes, 0 waits; so after 0 has stood SHIELD_PATIENCE_S + 0.3 s (credit 0.3 s: still later), but
+    # not after + 0.6 s (credit 0.6 s: earlier): only the wait beyond patience counts
     rows = [(0, 0, 15.0, 8.0, 0.0, 0), (0, 1, 47.0, 40.0, 12.0, 0)]
     assert _masks(rows) == [SHIELD_YIELD.tolist(), SHIELD_UNSTALL.tolist()]
-    assert _masks(rows, waited_s=[E.SHIELD_PATIENCE_S, 0.0]) == [SHIELD_YIELD.tolist(), SHIELD_UNSTALL.tolist()]
-    assert _masks(rows, waited_s=[2 * E.SHIELD_PATIENCE_S, 0.0]) == [SHIELD_UNSTALL.tolist(), SHIELD_YIELD.tolist()]
+    assert _masks(rows, waited_s=[E.SHIELD_PATIENCE_S + 0.3, 0.0]) == [SHIELD_YIELD.tolist(), SHIELD_UNSTALL.tolist()]
+    assert _masks(rows, waited_s=[E.SHIELD_PATIENCE_S + 0.6, 0.0]) == [SHIELD_UNSTALL.tolist(), SHIELD_YIELD.tolist()]
 
 
 def test_look_ahead_rows_yield_to_vehicles_with_no_junction_before_theirs():
@@ -121,17 +121,11 @@ def test_the_env_adds_a_look_ahead_row_for_the_next_junction_within_reach(tmp_pa
     # for the second once that is within SHIELD_LOOKAHEAD_M, at its own distance + 200 m, with the road between them
     net = artificial_network(2, tmp_path / "sc2.net.xml")
     first, middle, last = _straight_across_sc2(net)
-    folder = tmp_path / "across"
-    folder.mkdir()
-    (folder / "routes.rou.xml").write_text(
-        f'<routes>\n  <route id="r000" edges="{first.getID()} {middle.getID()} {last.getID()}"/>\n'
-        '  <vehicle id="r000.car.0" type="car" route="r000" depart="0" departSpeed="10" departPos="base"/>\n</routes>\n'
-    )
-    for model in ("IDM", "Krauss"):
-        (folder / f"vtypes_{model.lower()}.add.xml").write_text(vtypes_xml(model, 40.0))
+    files = hand_copy(tmp_path / "across", net, f'  <route id="r000" edges="{first.getID()} {middle.getID()} {last.getID()}"/>\n'
+                      '  <vehicle id="r000.car.0" type="car" route="r000" depart="0" departSpeed="10" departPos="base"/>\n')
     calls = []
     monkeypatch.setattr(E, "shield_masks", lambda *rows: calls.append([np.copy(r) for r in rows[:7]]) or np.ones((1, 5), bool))
-    env = UrbanParallelEnv(ScenarioFiles(str(net), str(folder / "routes.rou.xml"), str(folder), 0.0, 40.0), shield=True)
+    env = UrbanParallelEnv(files, shield=True)
     try:
         env.reset(seed=0)
         index = env.sim.index
@@ -182,26 +176,39 @@ def test_without_the_arrival_window_the_forced_crossing_collides(tmp_path, sc1_n
 
 
 def _blocked_exit_copy(folder, net):
-    """Sc1: a car stands 40 s on the first metres of road A0right0 (a stop), so r000's car, at the line by then, has no
-    room to enter; r001's car starts at 15 s, standing 13 m before the line on the crossing road, its exit free."""
-    folder.mkdir(parents=True, exist_ok=True)
-    (folder / "routes.rou.xml").write_text(
-        '<routes>\n  <route id="r000" edges="left0A0 A0right0"/>\n  <route id="r001" edges="bottom0A0 A0top0"/>\n'
+    """Sc1: a car stands 40 s on the first metres of road A0right0 (a stop), so r000's car, near the line by then, has no
+    room to enter (a second r000 car queues behind it); r001's car starts at 15 s, standing 13 m before the line on the
+    crossing road, its exit free."""
+    return hand_copy(
+        folder, net,
+        '  <route id="r000" edges="left0A0 A0right0"/>\n  <route id="r001" edges="bottom0A0 A0top0"/>\n'
         '  <route id="r002" edges="A0right0"/>\n'
         '  <vehicle id="r002.car.0" type="car" route="r002" depart="0" departSpeed="0" departPos="5">'
         '<stop lane="A0right0_0" endPos="12" duration="40"/></vehicle>\n'
         '  <vehicle id="r000.car.1" type="car" route="r000" depart="0" departSpeed="10" departPos="base"/>\n'
-        '  <vehicle id="r001.car.2" type="car" route="r001" depart="15" departSpeed="0" departPos="180"/>\n</routes>\n'
+        '  <vehicle id="r000.car.3" type="car" route="r000" depart="5" departSpeed="10" departPos="base"/>\n'
+        '  <vehicle id="r001.car.2" type="car" route="r001" depart="15" departSpeed="0" departPos="180"/>\n', 15.0,
     )
-    for model in ("IDM", "Krauss"):
-        (folder / f"vtypes_{model.lower()}.add.xml").write_text(vtypes_xml(model, 40.0))
-    return ScenarioFiles(str(net), str(folder / "routes.rou.xml"), str(folder), 15.0, 40.0)
 
 
-def _arrivals_accelerating(files) -> dict:
+def _arrivals_accelerating(files, shield_calls: list | None = None) -> dict:
     """The "always accelerate" policy under the layer (full acceleration where allowed, else the first allowed action, as
-    run_episode's masked argmax of a constant Q does); arrival time per vehicle."""
+    run_episode's masked argmax of a constant Q does); arrival time per vehicle. shield_calls: filled with (vehicle ids,
+    exit room, waited, internal) of every decision's call of the layer."""
     env = UrbanParallelEnv(files, shield=True)
+    if shield_calls is not None:
+        real, snapshot = E.shield_masks, env._shield
+
+        def spy(*rows):
+            shield_calls.append((ids[-1], rows[7][: len(ids[-1])].copy(), rows[8].copy(), rows[5][: len(ids[-1])].copy()))
+            return real(*rows)
+
+        def shield(snap, *rest):
+            ids.append(list(snap.ids))
+            return snapshot(snap, *rest)
+
+        ids, env._shield = [], shield
+        E.shield_masks = spy
     try:
         _, infos = env.reset(seed=0)
         while env.agents:
@@ -210,14 +217,26 @@ def _arrivals_accelerating(files) -> dict:
         return dict(env.sim.tally.arrive)
     finally:
         env.close()
+        if shield_calls is not None:
+            E.shield_masks = real
 
 
 def test_a_car_held_by_a_full_exit_does_not_hold_the_junction(tmp_path, sc1_net, monkeypatch):
     # the env's own path: exit room from SUMO's leader across the junction and the route table's centre-to-exit distance.
-    # r000's car reaches the line first and stands there until the stop ends (~44 s); r001's car crosses at once
+    # r000's car reaches the line first and stands before it until the stop ends (~44 s); r001's car crosses at once
     files = _blocked_exit_copy(tmp_path / "blocked", sc1_net)
-    arrive = _arrivals_accelerating(files)
+    calls = []
+    arrive = _arrivals_accelerating(files, calls)
     assert arrive["r001.car.2"] - 15.0 < 15.0 and arrive["r000.car.1"] > 44.0
+    # the room the env measured for r000's car: once the other car stands, its rear is 7 m into A0right0 (its stop ends at
+    # 12 m, a car is 5 m long; less while it creeps there, more as it drives off); no limit once it is off (or inside)
+    first = [(room[i], internal[i]) for ids, room, _, internal in calls for i, v in enumerate(ids) if v == "r000.car.1"]
+    blocked = [r for r, inside in first if np.isfinite(r)]
+    assert blocked and all(r < E.SHIELD_EXIT_ROOM_M for r in blocked) and 6.0 < np.median(blocked) < 7.5
+    assert not any(inside for r, inside in first if np.isfinite(r)) and np.isinf(first[-1][0])
+    # waiting counts for the first car of a road only: the car queued behind r000's has waited 0 throughout
+    waited = {v: [w[i] for ids, _, w, _ in calls for i, u in enumerate(ids) if u == v] for v in ("r000.car.1", "r000.car.3")}
+    assert max(waited["r000.car.1"]) > 20.0 and max(waited["r000.car.3"]) == 0.0
     # without the exit rule r001's car waits behind the reservation of the car that cannot enter
     monkeypatch.setattr(E, "SHIELD_EXIT_ROOM_M", -np.inf)
     assert _arrivals_accelerating(files)["r001.car.2"] > arrive["r000.car.1"]

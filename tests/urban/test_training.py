@@ -26,7 +26,7 @@ def test_same_seed_same_policy_and_log(tmp_path, sc1_net):
     assert ra[0]["epsilon"] == 0.9 and ra[-1]["epsilon"] < 0.9
 
 
-def test_training_under_the_safety_layer_acts_and_bootstraps_within_the_masks(tmp_path, sc1_net):
+def test_training_under_the_safety_layer_acts_and_bootstraps_within_the_masks(tmp_path, sc1_net, monkeypatch):
     files, routes = make_copy(tmp_path / "c", sc1_net, 15, 60.0)
     agents = [f"{r['route_id']}:{c}" for r in routes for c in ("car", "heavy")]
     params = {k: v.detach().numpy().copy() for k, v in RouteAgentsQ(len(agents), 6, torch.Generator().manual_seed(0)).state_dict().items()}
@@ -34,16 +34,21 @@ def test_training_under_the_safety_layer_acts_and_bootstraps_within_the_masks(tm
     for eps in (1.0, 0.0):  # exploring draws among the allowed actions, greedy takes the best allowed one
         t = run_episode(EpisodeJob(files, "col", agents, params, eps, 3, 15, shield=True)).transitions
         assert len(t["action"]) and t["allowed"][np.arange(len(t["action"])), t["action"]].all()
-        assert t["next_allowed"].shape == t["allowed"].shape
+        assert t["next_allowed"].shape == t["allowed"].shape and not np.array_equal(t["next_allowed"], t["allowed"])
         masked_somewhere |= not t["allowed"].all()
     assert masked_somewhere  # the layer did forbid actions: the check above could have failed
+    masks_seen = []  # what the learner's updates were given as the next states' allowed actions
+    real_update = col_marl.dqn_update
+    monkeypatch.setattr(col_marl, "dqn_update", lambda q, opt, batch, threads=1: masks_seen.append(batch[7]) or real_update(q, opt, batch, threads))
     (free, _), (shielded, rows) = (_train(files, agents, "col", 0, episodes=2, gradient_steps=2, shield=s) for s in (False, True))
     assert not np.array_equal(free["w1"], shielded["w1"])  # masked actions: other transitions, other weights
     assert len(rows) == 2 * len(agents)
+    assert masks_seen[:4] == [None] * 4 and all(m is not None for m in masks_seen[4:]) and not all(bool(m.all()) for m in masks_seen[4:])
 
 
 def test_masked_bootstrap_takes_the_best_allowed_next_action():
-    # y = r + γ Q_target(s', argmax over the allowed a of Q(s', a)): with one allowed action per row, that action
+    # double DQN under masks: y = r + γ Q_target(s', a*), a* = the online network's best *allowed* action in s'. Each row
+    # allows two actions, neither the online network's overall best; the target network prefers the other one of the two
     n, b = 2, 6
     g = torch.Generator().manual_seed(0)
     batch = [torch.rand(n, b, 6, generator=g), torch.randint(0, 5, (n, b), generator=g), torch.rand(n, b, generator=g),
@@ -51,14 +56,29 @@ def test_masked_bootstrap_takes_the_best_allowed_next_action():
     q = RouteAgentsQ(n, 6, torch.Generator().manual_seed(1))
     with torch.no_grad():
         q_taken = q(batch[0]).gather(2, batch[1][..., None]).squeeze(2)
-        greedy = q(batch[3]).argmax(dim=2)
-    only = (greedy + 1) % 5  # never the unmasked argmax
-    allowed = torch.nn.functional.one_hot(only, 5).bool()
+        ranked = q(batch[3]).argsort(dim=2, descending=True)
+    greedy, best_allowed, other = ranked[..., 0], ranked[..., 1], ranked[..., 2]
+    allowed = torch.zeros(n, b, 5, dtype=torch.bool).scatter(2, ranked[..., 1:3], True)
+    batch[4].scatter_(2, best_allowed[..., None], 0.0).scatter_(2, other[..., None], 2.0)  # the target's choice would be `other`
     losses = [dqn_update(q, torch.optim.SGD(q.parameters(), lr=0.0), (*batch, mask)) for mask in (allowed, None)]
-    for pick, loss in zip((only, greedy), losses):
+    for pick, loss in zip((best_allowed, greedy), losses):
         y = batch[2] + col_marl.GAMMA * batch[4].gather(2, pick[..., None]).squeeze(2)
         np.testing.assert_allclose(loss, ((q_taken - y) ** 2).mean(dim=1).numpy(), rtol=1e-5)
     assert not np.allclose(losses[0], losses[1])
+
+
+def test_masked_replay_buffers_keep_each_next_state_with_its_mask():
+    # the masks ride along with their transitions through the ring (agent 0's wraps) and the sampling
+    buffers = ReplayBuffers(3, 6, size=10, n_actions=5, masked=True)
+    target, rng = RouteAgentsQ(3, 6, torch.Generator().manual_seed(0)), np.random.default_rng(0)
+    for n in (7, 9):
+        agent, next_state = np.array([0] * (n - 2) + [2, 2]), rng.random((n, 6), np.float32)
+        buffers.add({"agent_idx": agent, "state": rng.random((n, 6), np.float32), "action": rng.integers(0, 5, n), "reward": rng.random(n, np.float32),
+                     "next_state": next_state, "done": np.zeros(n, np.float32), "next_allowed": next_state[:, :5] > 0.5}, target)
+    *batch, has_data, mask = buffers.sample(rng, 50)
+    assert has_data.tolist() == [True, False, True]
+    torch.testing.assert_close(mask[[0, 2]], batch[3][[0, 2], :, :5] > 0.5)
+    assert ReplayBuffers(3, 6, size=10, n_actions=5).sample(rng, 4)[-1] is None
 
 
 def test_i_marl_sees_four_state_terms(tmp_path, sc1_net):

@@ -13,17 +13,20 @@ def make_copy(folder: Path, net: Path, n_vehicles: int = 30, duration_s: float =
     return ScenarioFiles(str(net), info["routes_path"], info["folder"], info["last_depart_s"], vmax), routes
 
 
+def hand_copy(folder: Path, net: Path, routes_xml: str, last_depart_s: float = 0.0) -> ScenarioFiles:
+    """A scenario copy from hand-written routes and vehicles (the body of a <routes> file) with the env's vehicle types."""
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "routes.rou.xml").write_text(f"<routes>\n{routes_xml}</routes>\n")
+    for model in ("IDM", "Krauss"):
+        (folder / f"vtypes_{model.lower()}.add.xml").write_text(vtypes_xml(model, 40.0))
+    return ScenarioFiles(str(net), str(folder / "routes.rou.xml"), str(folder), last_depart_s, 40.0)
+
+
 def crossing_copy(folder: Path, net: Path, turn: bool = False) -> ScenarioFiles:
     """Two cars on crossing routes of Sc1, same entry time, same distance to the junction: if both hold
     their speed they meet in the middle of the junction. turn=True: one car alone, turning left."""
-    folder.mkdir(parents=True, exist_ok=True)
     cars = ('  <vehicle id="r001.car.0" type="car" route="r001" depart="0" departSpeed="10" departPos="base"/>\n' if turn else
             '  <vehicle id="r000.car.0" type="car" route="r000" depart="0" departSpeed="10" departPos="base"/>\n'
             '  <vehicle id="r001.car.1" type="car" route="r001" depart="0" departSpeed="10" departPos="base"/>\n')
     second = "bottom0A0 A0left0" if turn else "bottom0A0 A0top0"
-    (folder / "routes.rou.xml").write_text(
-        f'<routes>\n  <route id="r000" edges="left0A0 A0right0"/>\n  <route id="r001" edges="{second}"/>\n{cars}</routes>\n'
-    )
-    for model in ("IDM", "Krauss"):
-        (folder / f"vtypes_{model.lower()}.add.xml").write_text(vtypes_xml(model, 40.0))
-    return ScenarioFiles(str(net), str(folder / "routes.rou.xml"), str(folder), 0.0, 40.0)
+    return hand_copy(folder, net, f'  <route id="r000" edges="left0A0 A0right0"/>\n  <route id="r001" edges="{second}"/>\n{cars}')

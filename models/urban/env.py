@@ -262,11 +262,10 @@ def entry_roads(net_path: str, index) -> np.ndarray:
 
 @dataclass(frozen=True)
 class RouteTable:
-    """Per route agent (row, `code`) and edge of its route (column), for the safety layer's look-ahead: the junction at
-    the edge's end (-1 on the last edge: the goal), the road code, the position of that junction's centre along the
+    """Per route (row, as `route_rows`) and edge of its route (column), for the safety layer's look-ahead: the junction
+    at the edge's end (-1 on the last edge: the goal), the road code, the position of that junction's centre along the
     route (m), the distance from the edge's stop line to it and from it to the next edge's start."""
 
-    code: dict
     junction: np.ndarray
     road: np.ndarray
     centre_m: np.ndarray
@@ -293,7 +292,7 @@ def route_table(net_path: str, index, routes: dict) -> RouteTable:
         gaps = np.array([gap_out[e] for e in edges[1:]])
         centre_to_exit[r, : len(edges) - 1] = gaps
         centre[r, : len(edges)] = np.cumsum(index.lane_centre_m[codes] + np.concatenate([[0.0], gaps]))
-    return RouteTable(route_rows(routes), junction, road, centre, stop_to_centre, centre_to_exit)
+    return RouteTable(junction, road, centre, stop_to_centre, centre_to_exit)
 
 
 @functools.lru_cache(maxsize=65536)

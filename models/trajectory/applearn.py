@@ -142,7 +142,7 @@ class AppLearnParams:
     # Baird's advantage learning: the TD target loses α (max_a Q⁻(s, a) - Q⁻(s, a_t)), which widens the gaps
     # between the headings' Q-values by ~1/(1-α) (10x at 0.9) without changing the greedy policy of the exact
     # Q. Far from the goal the DQN's gaps were below the Q-net's noise and the greedy policy zig-zagged
-    # (docs/applearn.md, fourth investigation); 0 = the thesis's DQN target
+    # (docs/history/applearn.md, fourth investigation); 0 = the thesis's DQN target
     advantage_learning: float = 0.9
 
     def __post_init__(self):

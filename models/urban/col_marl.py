@@ -38,7 +38,7 @@ TARGET_EVERY_EPISODES = 5  # hard update of the target networks
 EPSILON_START = 0.9  # decays linearly to 0 ...
 EXPLORATION_FRACTION = 0.8  # ... over this share of the episodes; the rest is pure exploitation
 # the thesis trains "at the end of each episode" without saying how much: 40 steps beat 10 at the demo's 50 episodes
-# (fewer collisions on Sc1 and the real network, docs/urban.md) for 2-4x the training time; chapter 3's variant keeps its own (cnn_marl)
+# (fewer collisions on Sc1 and the real network, docs/history/urban.md) for 2-4x the training time; chapter 3's variant keeps its own (cnn_marl)
 GRADIENT_STEPS_PER_EPISODE = 40
 # Q is learnt on rewards / L (same greedy policy): with rewards of ±L = ±100 the tanh net's output layer would
 # need ~1,000 Adam steps at lr 1e-3 just to reach the scale of Q, more than the demo's whole budget

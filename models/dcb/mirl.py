@@ -27,22 +27,31 @@ class IndependentQ:
     def __init__(self, n_flights: int, n_states: int, prior: np.ndarray | None = None, lr: float = LEARNING_RATE, gamma: float = GAMMA):
         self.q = np.zeros((n_flights, n_states, 2)) if prior is None else prior.copy()
         self.lr, self.gamma = lr, gamma
+        # flat views of the C-contiguous table (copy=False: raise rather than update a copy): row i·S + s holds Q_i(s, ·),
+        # cell 2·row + a holds Q_i(s, a); `take` on rows is ~2x faster than q[agents, s], 1-d cells ~3x faster than triples
+        self._rows = self.q.reshape(-1, 2, copy=False)
+        self._cells = self._rows.reshape(-1, copy=False)
+        self._now = None  # (state, agents, their rows) of the last `values`, which `update` reuses
 
-    def _q(self, agents: np.ndarray, s: np.ndarray) -> np.ndarray:
-        """Q_i(s, ·) -> [agents, 2]; np.take on the flat table is ~2x faster than q[agents, s]."""
-        return np.take(self.q.reshape(-1, 2), agents * self.q.shape[1] + s, axis=0)
+    def _row(self, agents: np.ndarray, s: np.ndarray) -> np.ndarray:
+        return agents * self.q.shape[1] + s
 
     def values(self, state: np.ndarray, agents: np.ndarray, ev) -> np.ndarray:
-        """Q_i(s_i, ·) of the acting agents -> [agents, 2]."""
-        return self._q(agents, state[agents])
+        """Q_i(s_i, ·) of the acting agents -> [agents, 2]. `update` with the same `state` and `agents` arrays
+        (as `run_episode` passes them) reuses their rows: callers must not modify them in place in between."""
+        row = self._row(agents, state[agents])
+        self._now = (state, agents, row)
+        return self._rows.take(row, axis=0)
 
     def update(self, state, action, reward, next_state, agents) -> None:
-        row = agents * self.q.shape[1]
-        cell = 2 * (row + state[agents]) + action[agents]  # Q_i(s_i, a_i) in the flat table: 1-d indexing is ~3x faster
-        q = self.q.reshape(-1, copy=False)  # a view (q is created C-contiguous); copy=False raises rather than update a copy
-        target = reward[agents] + self.gamma * row_max(self._q(agents, next_state[agents]))  # Eq 5.6
-        old = q[cell]
-        q[cell] = old + self.lr * (target - old)
+        state_now, agents_now, row = self._now or (None, None, None)
+        if state is not state_now or agents is not agents_now:
+            row = self._row(agents, state[agents])
+        cell = 2 * row + action[agents]  # Q_i(s_i, a_i)
+        nxt = self._rows.take(self._row(agents, next_state[agents]), axis=0)
+        target = reward[agents] + self.gamma * np.maximum(nxt[:, 0], nxt[:, 1])  # Eq 5.6 (row_max's reduce costs more for 2 columns)
+        old = self._cells[cell]
+        self._cells[cell] = old + self.lr * (target - old)
 
     def update_loop(self, state, action, reward, next_state, agents) -> None:
         """The same update as `update`, one flight at a time (benchmark baseline only)."""

@@ -73,8 +73,18 @@ class _Entries:
     key_base: np.ndarray  # sector · n_hours
     whole_min: np.ndarray  # ⌊entry minute⌋
     dur_min: np.ndarray
+    within_hour: bool = False  # delays are known to lie in [0, 60] (the relevant entries with MaxDelay <= 60)
+
+    def __post_init__(self):
+        # for d in [0, 60] an entry at minute r = m mod 60 of its hour moves on at most one hour, and
+        # ⌊(r + d) / 60⌋ = ⌊(r + 4 + d) / 64⌋ (r + d < 120): the key is a shift of a per-entry constant plus d,
+        # ~2x faster than the integer division (and than adding a comparison's bools, which numpy casts slowly)
+        if self.within_hour:
+            self.shifted = 64 * (self.key_base + self.whole_min // 60) + self.whole_min % 60 + 4
 
     def keys(self, delay_min: np.ndarray) -> np.ndarray:
+        if self.within_hour:
+            return (self.shifted + delay_min.take(self.flight)) >> 6
         return self.key_base + (self.whole_min + delay_min.take(self.flight)) // 60
 
 
@@ -106,8 +116,9 @@ class DCBProblem:
         self.sector_capacity = np.array([capacity_per_h[s] for s in self.sectors], dtype=np.int64)
         self.capacity = np.repeat(self.sector_capacity, self.n_hours)  # [sector*hour], constant over the day
         self.relevant = self._entries_that_can_be_hot()
-        # the learners evaluate every step: their entries' arrays gathered once, not at every call
-        self.relevant_entries = self._entry_arrays(self.relevant)
+        # the learners evaluate every step: their entries' arrays gathered once, not at every call; delays for these
+        # entries lie in [0, MaxDelay] (outside it they would miss hot entries anyway)
+        self.relevant_entries = self._entry_arrays(self.relevant, within_hour=max_delay_min <= 60)
         self._all_entries = self._entry_arrays(slice(None))
         cost = flights["aircraft_class"].replace_strict(DELAY_COST_EUR_PER_MIN, return_dtype=pl.Float64).to_numpy()
         self.delay_weight = cost / AVG_DELAY_COST_EUR_PER_MIN  # DC per minute of delay, in average-cost minutes
@@ -126,8 +137,8 @@ class DCBProblem:
         over = np.concatenate([[0], np.cumsum(most > self.capacity)])  # over[k]: overloadable keys before k
         return np.nonzero(over[k1 + 1] - over[k0] > 0)[0]
 
-    def _entry_arrays(self, idx) -> "_Entries":
-        return _Entries(self.entry_flight[idx], self.entry_sector[idx] * self.n_hours, self.entry_whole_min[idx], self.entry_dur_min[idx])
+    def _entry_arrays(self, idx, within_hour: bool = False) -> "_Entries":
+        return _Entries(self.entry_flight[idx], self.entry_sector[idx] * self.n_hours, self.entry_whole_min[idx], self.entry_dur_min[idx], within_hour)
 
     def entry_keys(self, delay_min: np.ndarray, idx=slice(None)) -> np.ndarray:
         """key = sector · n_hours + ⌊(entry minute + d_i) / 60⌋ of every entry (whole-minute delays)."""

@@ -1,7 +1,8 @@
 """The learners' fast paths give exactly what the straightforward versions they replaced gave.
 
 `evaluate` (integer keys, entry arrays gathered once, per-flight sums over hot entries only) against
-the former full evaluation (float keys, weighted sums over every entry); `peer_edges` (sort-based
+the former full evaluation (float keys, weighted sums over every entry), and its keys within the hour (a
+shift) against the integer division; `peer_edges` (sort-based
 unique) against np.unique; `row_max` against max(axis=1); and whole training runs against delays
 recorded with the code before the speed-ups (same seed -> same delays, bit for bit): RECORDED before
 the first round, RECORDED_CMARL before CoordinatedQ's split hash, stacked tables and graph reuse.
@@ -56,6 +57,17 @@ def test_evaluate_equals_the_former_full_evaluation(small_case, all_entries):
         assert np.array_equal(i, fi) and np.array_equal(j, fj) and np.array_equal(pair, i * p.n_flights + j)
         assert np.array_equal(degree, np.bincount(np.concatenate([fi, fj]), minlength=p.n_flights))
     assert hot_seen > 0  # the comparison covered hotspots, not only empty pictures
+
+
+def test_keys_within_the_hour_equal_the_integer_division(small_case):
+    """The relevant entries' keys for delays in [0, 60] (a shift) equal ⌊(m + d) / 60⌋ (the division), at every
+    delay including the hour boundaries (an entry at hh:00 delayed 60 min)."""
+    e = small_case.relevant_entries
+    assert e.within_hour and (e.whole_min % 60 == 0).any()
+    for d in range(61):
+        delay = np.full(small_case.n_flights, d)
+        keys = e.keys(delay)
+        assert keys.dtype == np.int64 and np.array_equal(keys, e.key_base + (e.whole_min + d) // 60)
 
 
 def test_row_max_equals_max_over_columns():

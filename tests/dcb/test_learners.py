@@ -52,10 +52,14 @@ def test_vectorised_update_equals_per_flight_loop():
     rng = np.random.default_rng(0)
     n, states = 50, 12
     vec, loop = IndependentQ(n, states), IndependentQ(n, states)
-    for _ in range(20):
+    for step in range(40):
         agents = np.sort(rng.choice(n, 30, replace=False))
         s, s2 = rng.integers(0, states, n), rng.integers(0, states, n)
         a, r = rng.integers(0, 2, n), rng.normal(size=n) * 100
+        if step % 2:  # as in an episode: the action values first, whose rows the update reuses
+            assert np.array_equal(vec.values(s, agents, None), loop.q[agents, s[agents]])
+        elif step % 4 == 2:  # values of other states and agents first: the update must not reuse their rows
+            vec.values(s2, agents[::2], None)
         vec.update(s, a, r, s2, agents)
         loop.update_loop(s, a, r, s2, agents)
     assert np.array_equal(vec.q, loop.q) and np.abs(vec.q).sum() > 0  # same float operations in the same order: bit for bit

@@ -29,14 +29,21 @@ action values when the graph is unchanged (only the ground rows are read again).
 """
 
 from dataclasses import dataclass
+from functools import reduce
 
 import numpy as np
 
-from models.dcb.mirl import GAMMA, LEARNING_RATE, row_max
+from models.dcb.mirl import GAMMA, LEARNING_RATE
 
 TABLE_BITS = 20
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 _SHIFT = np.uint64(64 - TABLE_BITS)
+
+
+def row_max(q: np.ndarray) -> np.ndarray:
+    """max over the (4) joint-action columns of every row: np.maximum column by column, as numpy's
+    q.max(axis=1) over so few columns is ~40x slower."""
+    return reduce(np.maximum, q.T)
 
 
 def hot_entry_codes(ev, n_flights: int) -> np.ndarray:

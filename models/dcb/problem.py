@@ -16,7 +16,7 @@ of the day's total of Eq 5.2, `overload_reward`, the same for the day's entries 
 `movers`, the extra component of the extended local state.
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import timedelta
 
 import numpy as np
@@ -74,6 +74,7 @@ class _Entries:
     whole_min: np.ndarray  # ⌊entry minute⌋
     dur_min: np.ndarray
     within_hour: bool = False  # delays are known to lie in [0, 60] (the relevant entries with MaxDelay <= 60)
+    shifted: np.ndarray = field(init=False, default=None)  # within_hour: 64 · (key_base + hour) + minute in the hour + 4
 
     def __post_init__(self):
         # for d in [0, 60] an entry at minute r = m mod 60 of its hour moves on at most one hour, and
@@ -116,8 +117,8 @@ class DCBProblem:
         self.sector_capacity = np.array([capacity_per_h[s] for s in self.sectors], dtype=np.int64)
         self.capacity = np.repeat(self.sector_capacity, self.n_hours)  # [sector*hour], constant over the day
         self.relevant = self._entries_that_can_be_hot()
-        # the learners evaluate every step: their entries' arrays gathered once, not at every call; delays for these
-        # entries lie in [0, MaxDelay] (outside it they would miss hot entries anyway)
+        # the learners evaluate every step: their entries' arrays gathered once, not at every call; every caller keeps
+        # delays within [0, MaxDelay] (the entries are chosen for those), which lets the keys be a shift when MaxDelay <= 60
         self.relevant_entries = self._entry_arrays(self.relevant, within_hour=max_delay_min <= 60)
         self._all_entries = self._entry_arrays(slice(None))
         cost = flights["aircraft_class"].replace_strict(DELAY_COST_EUR_PER_MIN, return_dtype=pl.Float64).to_numpy()
@@ -145,7 +146,9 @@ class DCBProblem:
         return self._entry_arrays(idx).keys(delay_min)
 
     def evaluate(self, delay_min: np.ndarray, all_entries: bool = False) -> Evaluation:
-        """Hotspots for a delay vector; `all_entries` also counts entries that can never be in a hotspot."""
+        """Hotspots for a delay vector; `all_entries` also counts entries that can never be in a hotspot. Without it,
+        delays must lie in [0, MaxDelay]: the relevant entries are chosen for those, and their keys are computed
+        for them only (a shift when MaxDelay <= 60)."""
         e = self._all_entries if all_entries else self.relevant_entries
         key = e.keys(delay_min)
         if all_entries and (key % self.n_hours).max() >= self.n_hours - 1:

@@ -2,18 +2,17 @@
 
 `evaluate` (integer keys, entry arrays gathered once, per-flight sums over hot entries only) against
 the former full evaluation (float keys, weighted sums over every entry), and its keys within the hour (a
-shift) against the integer division; `peer_edges` (sort-based
-unique) against np.unique; `row_max` against max(axis=1); and whole training runs against delays
-recorded with the code before the speed-ups (same seed -> same delays, bit for bit): RECORDED before
+shift) against the integer division; `peer_edges` (sort-based unique) against np.unique; `row_max` against
+max(axis=1); and whole training runs against delays recorded with the code before the speed-ups (same seed -> same delays, bit for bit): RECORDED before
 the first round, RECORDED_CMARL before CoordinatedQ's split hash, stacked tables and graph reuse.
 """
 
 import numpy as np
+import polars as pl
 import pytest
 
-from models.dcb.cmarl import peer_edges
+from models.dcb.cmarl import peer_edges, row_max
 from models.dcb.experiment import build_problem
-from models.dcb.mirl import row_max
 from models.dcb.train import train
 
 
@@ -59,14 +58,18 @@ def test_evaluate_equals_the_former_full_evaluation(small_case, all_entries):
     assert hot_seen > 0  # the comparison covered hotspots, not only empty pictures
 
 
-def test_keys_within_the_hour_equal_the_integer_division(small_case):
-    """The relevant entries' keys for delays in [0, 60] (a shift) equal ⌊(m + d) / 60⌋ (the division), at every
-    delay including the hour boundaries (an entry at hh:00 delayed 60 min)."""
-    e = small_case.relevant_entries
-    assert e.within_hour and (e.whole_min % 60 == 0).any()
-    for d in range(61):
-        delay = np.full(small_case.n_flights, d)
-        keys = e.keys(delay)
+@pytest.mark.parametrize("max_delay", [60, 61, 90])
+def test_relevant_keys_equal_the_integer_division_at_every_admissible_delay(swiss_tables, max_delay):
+    """The relevant entries' keys (a shift when MaxDelay <= 60, else the division) equal ⌊(m + d) / 60⌋ at every delay
+    in [0, MaxDelay], entries at hh:00 and hh:59 (the identity's tight edge) among them."""
+    sectors, flights, entries = swiss_tables
+    first = entries.group_by("flight_id").agg(pl.col("entry_ts").min())
+    keep = first.filter(pl.col("entry_ts").dt.hour().is_between(9, 10))["flight_id"].implode()
+    p = build_problem(entries.filter(pl.col("flight_id").is_in(keep)), sectors, flights.filter(pl.col("flight_id").is_in(keep)), 0.9, max_delay)
+    e = p.relevant_entries
+    assert e.within_hour == (max_delay <= 60) and (e.whole_min % 60 == 0).any() and (e.whole_min % 60 == 59).any()
+    for d in range(max_delay + 1):
+        keys = e.keys(np.full(p.n_flights, d))
         assert keys.dtype == np.int64 and np.array_equal(keys, e.key_base + (e.whole_min + d) // 60)
 
 

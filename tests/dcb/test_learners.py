@@ -58,8 +58,10 @@ def test_vectorised_update_equals_per_flight_loop():
         a, r = rng.integers(0, 2, n), rng.normal(size=n) * 100
         if step % 2:  # as in an episode: the action values first, whose rows the update reuses
             assert np.array_equal(vec.values(s, agents, None), loop.q[agents, s[agents]])
-        elif step % 4 == 2:  # values of other states and agents first: the update must not reuse their rows
-            vec.values(s2, agents[::2], None)
+        elif step % 4 == 2:  # values of other agents (same state) first: the update must not reuse their rows
+            vec.values(s, agents[::2], None)
+        elif step % 8 == 4:  # values of another state (same agents) first: nor these
+            vec.values(s2, agents, None)
         vec.update(s, a, r, s2, agents)
         loop.update_loop(s, a, r, s2, agents)
     assert np.array_equal(vec.q, loop.q) and np.abs(vec.q).sum() > 0  # same float operations in the same order: bit for bit

@@ -131,7 +131,7 @@ class AppLearnParams:
     route_start_fraction: float = 0.25
     # this share starts on the route's final approach (its last GOAL_START_WIDTHS · σ, σ to either side): only
     # ~1 route start in 16 lies there on mode 0, and the failing mode-0 run's Q-values fell towards the goal
-    # (about -8 within 10 km of it, -5 far out): it zig-zagged 5-10 km off the disc (docs/applearn.md)
+    # (about -8 within 10 km of it, -5 far out): it zig-zagged 5-10 km off the disc (docs/history/applearn.md, fifth investigation)
     goal_start_fraction: float = 0.15
     n_step: int = 10  # n of the n-step return; 1 = the one-step target of the thesis's DQN
     corridor_widths: float = 4.0  # training only: failure beyond this many σ from the route or past the goal; 0 = off
@@ -161,7 +161,7 @@ PROFILES = {
     "paper": AppLearnParams(),
     # minutes on 2 cores for all partitions and seeds: fewer, wider batches of episodes, smaller updates, and
     # one reward scale instead of a choice per run (which doubles the training): 0.01, the validated choice
-    # over the 40 demo runs of 2026-11-23 (validation success 12.5 % vs 1.3 % for 0.1; docs/applearn.md)
+    # over the 40 demo runs of 2026-11-23 (validation success 12.5 % vs 1.3 % for 0.1; docs/history/applearn.md)
     "demo": AppLearnParams(
         reward_scales=(0.01,), altitude_epochs=150, episodes=768, n_envs=256, batch_size=256, buffer_size=100_000,
         transitions_per_update=128, epsilon_every_episodes=64, irl_every_episodes=128, target_every_episodes=16,

@@ -22,15 +22,15 @@ From there it drives its last road under a fixed rule (max acceleration up to ve
 SUMO's safety checks back on, and it no longer is a PettingZoo agent.
 
 safe_dist (Eq 4.5-4.7, i-MARL's Eq 3.3): the thesis's 20 m on every road by default (SAFE_DIST_RULE);
-"headway" and "stopping" make it grow with speed (measured: no fewer collisions after the demo budget, see
-docs/urban.md).
+"headway" and "stopping" make it grow with speed (measured: no fewer collisions after the demo budget,
+docs/history/urban.md, first session).
 
 Car-following safety (leader_guard=True, the default): SUMO caps each agent vehicle's commanded speed at the
 safe speed behind its leader (speed mode 97 with Krauss vehicle types: the speed from which it can still stop
 behind a leader braking hard), and nothing else: no right of way at the junctions, no speed limits, the agent's
 acceleration otherwise executed as is. The thesis's agents learn to cross unsignalized junctions; car following is
 left to the simulator as for its IDM baseline, which "shares the same safety settings as the proposed method (i.e.,
-unsignalized intersections, no right-way rule, and so on)" (§4.3.1; docs/urban.md). leader_guard=False: every
+unsignalized intersections, no right-way rule, and so on)" (§4.3.1; docs/history/urban.md, second session). leader_guard=False: every
 SUMO check off (speed mode 32), rear-end collisions possible.
 """
 

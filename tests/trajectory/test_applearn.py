@@ -214,7 +214,7 @@ def test_training_starts_mix_the_four_kinds_in_the_shipped_shares(cluster, train
     assert left_km[final].max() <= 8 * route.width_km + 1e-6 and (route.beyond_goal_km(pts[final]) <= 1e-6).all()
     assert left_km[along].max() > 0.9 * route.length_km
     assert np.isin(starts.lon[kind == 0], firsts.lon).all()
-    # without final-approach starts none are drawn (that the other kinds' draws are the old ones: docs/applearn.md)
+    # without final-approach starts none are drawn (that the other kinds' draws are the old ones: docs/history/applearn.md, fifth investigation)
     off = replace(params, goal_start_fraction=0.0)
     a, ka = mix_starts(np.random.default_rng(1), 500, off, route, model.altitude, firsts, anywhere)
     assert not (ka == 3).any() and np.isfinite(a.lon).all()

@@ -45,7 +45,7 @@ from pettingzoo import ParallelEnv
 
 from models.urban.network import read_net
 from models.urban.scenarios import ACTIONS_MPS2, MIN_GAP_M, VEHICLE_TYPES
-from models.urban.sim import ACTION_S, SPEED_MODE_CAR_FOLLOWING, SPEED_MODE_FREE, ScenarioFiles, Simulation, _raw
+from models.urban.sim import ACTION_S, SPEED_MODE_CAR_FOLLOWING, SPEED_MODE_FREE, ScenarioFiles, Simulation
 
 GOAL_REWARD = 1000.0  # L of Eq 4.3 (not given; "not sensitive"): a second of delay must cost more ((1 - γ) L = 10) than Eq 4.6 saves by stopping (c2 + f(v) ≤ 6)
 SAFE_DIST_M = 20.0  # safe_dist of Eq 4.5-4.7 (thesis); the floor of the speed-dependent rules below
@@ -481,10 +481,10 @@ class UrbanParallelEnv(ParallelEnv):
         exit_start_m = centre_dist + table.centre_to_exit_m[route, snap.route_index]
         exit_room = np.where(past_line & ~internal, snap.leader_dist - exit_start_m, np.inf)
         # waiting counts for the first vehicle of each road only: a follower waits for its leader, not for the junction.
-        # SUMO's waiting time is 0 at 0.1 m/s and above, so only the standing heads are asked (the C getter, as sim does)
+        # SUMO's waiting time is 0 at 0.1 m/s and above, so only the standing heads are asked
         standing = np.flatnonzero(((snap.leader_dist < 0) | (snap.leader_dist > dist)) & (snap.speed < 0.1))
         waited = np.zeros(len(snap.ids))
-        waited[standing] = np.fromiter(map(_raw().vehicle_getWaitingTime, map(snap.ids.__getitem__, standing)), float, len(standing))
+        waited[standing] = self.sim.waiting_s([snap.ids[i] for i in standing])
         return shield_masks(
             np.concatenate([junction, ahead_j[keep]]), np.concatenate([road, table.road[route[owner], e]]),
             np.concatenate([centre_dist, ahead_m[keep]]), np.concatenate([dist, ahead_m[keep] - table.stop_to_centre_m[route[owner], e]]),

@@ -269,6 +269,10 @@ class Simulation:
         self.tally.samples += n
         return snap
 
+    def waiting_s(self, ids: list) -> np.ndarray:
+        """SUMO's waiting time of these vehicles (s spent below 0.1 m/s since they last moved), with its C getter."""
+        return np.fromiter(map(_raw().vehicle_getWaitingTime, ids), float, len(ids))
+
     @property
     def time(self) -> float:
         return self.ls.simulation.getTime()

@@ -21,7 +21,7 @@ from models.aviation.weather import (
     weather_time_range,
 )
 
-DATA = Path(__file__).resolve().parents[1] / "data" / "weather"
+DATA = Path(__file__).resolve().parents[2] / "data" / "weather"
 GFS = DATA / "gfs_2011_isobaric_t_u_v.grib2"
 ERA5 = DATA / "era5_2019-01-05_europe_200-300hPa.nc"
 UTC = dt.UTC

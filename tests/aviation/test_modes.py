@@ -29,8 +29,8 @@ from models.aviation.plots import (
 )
 from models.aviation.recording import read_recording_summary, write_modes_recording
 from models.aviation.resample import resample
+from tests.conftest import OPENSKY
 
-OPENSKY = Path(__file__).resolve().parent.parent / "data" / "opensky" / "kaliningrad_2022-02-22_2022-03-05.parquet"
 CLOSURE = pl.Series(["2022-02-27"]).str.to_datetime(time_zone="UTC")[0]
 
 

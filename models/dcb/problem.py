@@ -209,8 +209,8 @@ class DCBProblem:
         (entries beyond capacity, summed over sector-hours) instead of its congested minutes.
 
         `difference_reward` credits a flight that leaves a hotspot with its own minutes there even when the
-        hotspot stays overloaded, so every flight of a hotspot gains by fleeing: the lockstep over-delay of
-        docs/dcb.md. Here leaving pays P only if it lowered the overload (the hour still had an entry too many
+        hotspot stays overloaded, so every flight of a hotspot gains by fleeing: the lockstep over-delay
+        (docs/dcb.md, "What we learned"). Here leaving pays P only if it lowered the overload (the hour still had an entry too many
         with the flight in it) and arriving costs P if it raised it; a second flight leaving an hour the first
         has already cleared pays its delay and earns nothing. P = 2 · λ · MaxDelay: resolving an excess entry is always worth more
         than any admissible delay. Exact for one entry per flight and sector-hour."""

@@ -4,7 +4,7 @@
 the former full evaluation (float keys, weighted sums over every entry), and its keys within the hour (a
 shift) against the integer division; `peer_edges` (sort-based unique) against np.unique; `row_max` against
 max(axis=1); and whole training runs against delays recorded with the code before the speed-ups (same seed -> same delays, bit for bit): RECORDED before
-the first round, RECORDED_CMARL before CoordinatedQ's split hash, stacked tables and graph reuse.
+the first speed-ups (docs/history/dcb.md, first round), RECORDED_CMARL before CoordinatedQ's split hash, stacked tables and graph reuse.
 """
 
 import numpy as np

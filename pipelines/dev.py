@@ -7,6 +7,7 @@ wrapper forwards SIGINT/SIGTERM to it and waits for it to shut its webserver and
 
 import os
 import signal
+import socket
 import subprocess
 import sys
 
@@ -14,6 +15,12 @@ import sys
 def main() -> int:
     host = os.environ.get("TRAFFICLEARN_UI_HOST", "127.0.0.1")
     port = os.environ.get("TRAFFICLEARN_UI_PORT", "3000")
+    with socket.socket() as probe:
+        # dagster dev would log "Serving ..." and keep its daemon running with no webserver
+        if probe.connect_ex((host, int(port))) == 0:
+            print(f"error: {host}:{port} is already in use (another `make dev`?); "
+                  f"set TRAFFICLEARN_UI_PORT to use another port", file=sys.stderr)
+            return 1
     cmd = [sys.executable, "-m", "dagster", "dev", "-m", "pipelines.definitions", "-h", host, "-p", port]
 
     def restore_defaults() -> None:
@@ -23,14 +30,20 @@ def main() -> int:
     child = subprocess.Popen(cmd, preexec_fn=restore_defaults)
     print(f"Dagster UI on http://{host}:{port} (Ctrl-C stops it)", flush=True)
 
+    stopped = False
+
     def forward(signum, _frame) -> None:
+        nonlocal stopped
+        stopped = True
         if child.poll() is None:
             child.send_signal(signal.SIGINT)  # dagster dev shuts down cleanly on SIGINT
 
     signal.signal(signal.SIGINT, forward)
     signal.signal(signal.SIGTERM, forward)
     try:
-        return child.wait()
+        code = child.wait()
+        # Ctrl-C reaches dagster dev twice (terminal + forward): it exits 1 "Aborted!", yet the stop is the user's
+        return 0 if stopped else code
     finally:
         if child.poll() is None:
             child.kill()

@@ -81,6 +81,21 @@ def test_cli_tables_sql_formats(capsys):
     assert main(["sql", "DELETE FROM ingest_summary"]) == 1
     err = capsys.readouterr().err
     assert err.startswith("error:") and len(err.strip().splitlines()) == 1
+    # an error DuckDB only raises while fetching rows, not while planning
+    assert main(["sql", "SELECT CAST(outcome AS INTEGER) FROM ingest_summary"]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("error: Conversion Error") and len(err.strip().splitlines()) == 1
+
+
+def test_cli_shell_piped(monkeypatch, capsys):
+    storage.write_table("ingest_summary", _summary())
+    script = "SELECT count(*) AS n\nFROM ingest_summary;\nDROP VIEW ingest_summary;\nSELECT sum(rows) AS total FROM ingest_summary\n"
+    monkeypatch.setattr(sys, "stdin", __import__("io").StringIO(script))
+    assert main(["shell"]) == 0
+    out = capsys.readouterr().out
+    assert "(1 row)" in out and "error: Invalid Input Error" in out
+    # the last statement has no ';' but ends the input: it still runs
+    assert out.split("total")[-1].split()[1] == "3"
 
 
 def test_cli_reads_while_a_writer_replaces_files(isolated_home):

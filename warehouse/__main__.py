@@ -52,12 +52,13 @@ def cmd_sql(args) -> int:
     with connect() as con:
         try:
             rel = con.sql(args.query)
+            # DuckDB runs a SELECT lazily: conversion and other run-time errors come at fetch time.
+            text = None if rel is None else _render(rel, args.format)
         except duckdb.Error as e:
             print(f"error: {str(e).splitlines()[0]}", file=sys.stderr)
             return 1
-        if rel is None:  # a statement with no result set; DuckDB already refused anything that writes
-            return 0
-        print(_render(rel, args.format))
+        if text is not None:  # None: a statement with no result set; DuckDB already refused anything that writes
+            print(text)
     return 0
 
 
@@ -72,17 +73,23 @@ def cmd_shell(args) -> int:
                 line = input("sql> " if not buffer else "...> ")
             except (EOFError, KeyboardInterrupt):
                 print()
+                if buffer.strip():  # piped input whose last statement lacks its ';'
+                    _shell_run(con, buffer)
                 return 0
             buffer += line + "\n"
             if not buffer.strip().endswith(";"):
                 continue
-            try:
-                rel = con.sql(buffer)
-                if rel is not None:
-                    print(_render(rel, "table"))
-            except duckdb.Error as e:
-                print(f"error: {str(e).splitlines()[0]}")
+            _shell_run(con, buffer)
             buffer = ""
+
+
+def _shell_run(con: duckdb.DuckDBPyConnection, statement: str) -> None:
+    try:
+        rel = con.sql(statement)
+        if rel is not None:
+            print(_render(rel, "table"))
+    except duckdb.Error as e:
+        print(f"error: {str(e).splitlines()[0]}")
 
 
 def cmd_schema(args) -> int:

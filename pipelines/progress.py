@@ -59,6 +59,10 @@ class ProgressHandler(logging.Handler):
             self.bar.set_postfix_str(message.splitlines()[0][:80] if message else "")
         if record.levelno >= logging.WARNING:
             self._print(f"{record.levelname} {step}: {message}")
+        elif kind == "ASSET_CHECK_EVALUATION" and not event.asset_check_evaluation_data.passed:
+            # Dagster logs a failed check at DEBUG and its step still succeeds: say so, or the terminal shows only "done"
+            check = event.asset_check_evaluation_data
+            self._print(f"{check.severity.value} {step}: check {check.check_name} on {check.asset_key.to_user_string()} did not pass")
         if kind in ("PIPELINE_SUCCESS", "PIPELINE_FAILURE"):  # the run ended (these are the run events' values)
             self.bar.close()
 

@@ -24,8 +24,18 @@ def broken(upstream: int) -> int:
     raise RuntimeError("this asset always fails")
 
 
-def _job(*assets) -> dg.JobDefinition:
-    return dg.Definitions(assets=list(assets), loggers={"progress": progress_logger}).resolve_implicit_global_asset_job_def()
+@dg.asset_check(asset=upstream)
+def upstream_is_odd() -> dg.AssetCheckResult:
+    return dg.AssetCheckResult(passed=False, severity=dg.AssetCheckSeverity.WARN)
+
+
+@dg.asset_check(asset=upstream)
+def upstream_is_positive() -> dg.AssetCheckResult:
+    return dg.AssetCheckResult(passed=True)
+
+
+def _job(*assets, checks=()) -> dg.JobDefinition:
+    return dg.Definitions(assets=list(assets), asset_checks=list(checks), loggers={"progress": progress_logger}).resolve_implicit_global_asset_job_def()
 
 
 def test_success_prints_a_line_per_step_and_writes_the_log(tmp_path, monkeypatch, capsys):
@@ -45,6 +55,15 @@ def test_failure_names_the_step_and_shows_the_error(tmp_path, monkeypatch, capsy
     err = capsys.readouterr().err
     assert not ok and line.startswith("toy: FAILED at broken after ")
     assert "broken FAILED in" in err and "this asset always fails" in err
+
+
+def test_a_failed_check_is_printed_though_its_step_succeeds(tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("TRAFFICLEARN_HOME", str(tmp_path))
+    ok, _ = materialize.run(_job(upstream, checks=[upstream_is_odd, upstream_is_positive]), "toy", dg.DagsterInstance.ephemeral())
+    err = capsys.readouterr().err
+    assert ok
+    assert "WARN upstream_upstream_is_odd: check upstream_is_odd on upstream did not pass" in err
+    assert "upstream_is_positive on upstream did not pass" not in err
 
 
 def test_every_asset_group_has_a_job():

@@ -61,12 +61,13 @@ def read_so6(path: str | Path) -> tuple[pl.DataFrame, pl.DataFrame]:
     if not p.is_file():
         raise DemandError(f"{p}: no such SO6 file")
     text = p.read_text(errors="replace")
-    raw = [ln for ln in text.splitlines()]
-    lines = pl.DataFrame({"line_number": np.arange(1, len(raw) + 1), "line": raw}).filter(pl.col("line").str.strip_chars() != "")
+    raw = text.splitlines()
+    lines = pl.DataFrame({"line_number": np.arange(1, len(raw) + 1), "line": raw}, schema={"line_number": pl.Int64, "line": pl.String})
+    lines = lines.filter(pl.col("line").str.strip_chars() != "")
     if lines.height == 0:
         raise DemandError(f"{p}: the SO6 file has no lines")
     source = p.name
-    fields = pl.col("line").str.strip_chars().str.split(by=" ").list.eval(pl.element().filter(pl.element() != ""))
+    fields = pl.col("line").str.strip_chars().str.replace_all(r"\s+", " ").str.split(by=" ")  # spaces or tabs
     lines = lines.with_columns(_f=fields)
     wrong_count = pl.when(pl.col("_f").list.len() != len(SO6_FIELDS)).then(pl.lit("wrong_field_count"))
     rejected = [_so6_rejects(lines, source, wrong_count)]
@@ -74,8 +75,10 @@ def read_so6(path: str | Path) -> tuple[pl.DataFrame, pl.DataFrame]:
         pl.col("_f").list.get(i).alias(name) for i, name in enumerate(SO6_FIELDS)
     )
     num = {c: pl.col(c).cast(pl.Float64, strict=False) for c in ("fl_begin", "fl_end", "lat_begin_min", "lon_begin_min", "lat_end_min", "lon_end_min")}
+    # exactly YYMMDD and HHMMSS: a shorter time such as 0631 (HHMM) would otherwise parse as 00:06:31
     ts = {
-        end: (pl.col(f"date_{end}") + pl.col(f"time_{end}").str.zfill(6)).str.strptime(TS, "%y%m%d%H%M%S", strict=False)
+        end: pl.when(pl.col(f"date_{end}").str.contains(r"^\d{6}$") & pl.col(f"time_{end}").str.contains(r"^\d{6}$"))
+        .then(pl.col(f"date_{end}") + pl.col(f"time_{end}")).str.strptime(TS, "%y%m%d%H%M%S", strict=False)
         for end in ("begin", "end")
     }
     parsed = ok.with_columns(**num, t_begin=ts["begin"], t_end=ts["end"])

@@ -7,7 +7,7 @@ import numpy as np
 import polars as pl
 
 from models.aviation.ingest import summarise
-from models.dcb.airspace import GeoJSONSectorisation, GridSectorisation, sector_entries
+from models.dcb.airspace import GeoJSONSectorisation, GridSectorisation, SectorFileError, sector_entries
 from models.dcb.cmarl import peer_edges
 from models.dcb.demand import adsb_demand, so6_demand
 from models.markdown import markdown_table
@@ -48,6 +48,10 @@ def airspace_tables(points: pl.DataFrame, flights: pl.DataFrame, sectoriser) -> 
     """-> (sectors with base capacity, flights with cost and entry count, sector entries)."""
     sectors = sectoriser.sectors()
     entries = sector_entries(points, sectoriser)
+    if entries.is_empty():  # nothing to balance; most often a GeoJSON written [lat, lon] or levels in feet
+        where = getattr(sectoriser, "path", "the grid sectorisation")
+        raise SectorFileError(f"{where}: none of the {flights.height} flights enters any of its {sectors.height} sectors "
+                              "(GeoJSON positions are [lon, lat]; fl_lower/fl_upper are flight levels)")
     base = base_capacities(entries, sectors)
     sectors = sectors.with_columns(base_capacity_per_h=pl.col("sector").replace_strict(base, return_dtype=pl.Int64))
     n = entries.group_by("flight_id").agg(n_entries=pl.len().cast(pl.Int64))

@@ -71,13 +71,16 @@ def fcfs(problem: DCBProblem, max_rounds: int = 1000) -> np.ndarray:
 
     Repeatedly, in every hotspot the first `capacity` entries keep their time and each later one is
     delayed just into the next hour; a flight takes its largest such delay. Delays are not capped
-    at MaxDelay. Stops when no hotspot is left."""
+    at MaxDelay. Stops when no hotspot is left; InfeasibleError when that needs delays past the problem's hour grid."""
     delay = np.zeros(problem.n_flights, dtype=np.int64)
     flight, sector = problem.entry_flight, problem.entry_sector
     for _ in range(max_rounds):
         # keys of its own: uncapped delays can run past the problem's hour grid
         t = problem.entry_min + delay[flight]
         hour = (t // 60).astype(np.int64)
+        if hour.max() >= problem.n_hours - 1:  # capacities far below the demand: no FCFS schedule the results can evaluate
+            raise InfeasibleError(f"FCFS needs delays of up to {delay.max()} min, past the problem's {problem.n_hours}-hour grid: "
+                                  "the capacities cannot carry the day's demand")
         key = sector * (int(hour.max()) + 1) + hour
         order = np.lexsort((t, key))
         ks = key[order]

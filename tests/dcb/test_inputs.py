@@ -8,7 +8,7 @@ import pytest
 
 from models.dcb.airspace import GeoJSONSectorisation, SectorFileError, sector_entries
 from models.dcb.demand import DemandError, read_so6
-from models.dcb.experiment import load_demand
+from models.dcb.experiment import airspace_tables, load_demand
 
 GOOD = [
     "LSGG_LSZH LSGG LSZH A320 100000 101500 300 360 0 SWR100 180801 180801 2784.0 372.0 2784.0 480.0 F1 1 50.0 0",
@@ -46,12 +46,26 @@ def test_malformed_so6_lines_are_quarantined_and_counted(tmp_path):
     assert entries.filter(pl.col("flight_id") == "F1")["sector"].to_list() == ["WEST", "EAST"]
 
 
+def test_so6_times_must_be_hhmmss_and_tabs_separate_fields(tmp_path):
+    hhmm = GOOD[2].replace("120000 121000", "1200 1210")  # HHMM: not 00:12:00
+    tabs = GOOD[0].replace(" ", "\t")
+    path = tmp_path / "day.so6"
+    path.write_text("\n".join([hhmm, tabs]) + "\n")
+    segments, rejects = read_so6(path)
+    assert rejects.select("line_number", "reason").rows() == [(1, "bad_time_or_date")]
+    assert segments["flight_id"].to_list() == ["F1"]
+
+
 def test_so6_without_a_usable_line_is_one_clear_error(tmp_path):
     path = tmp_path / "bad.so6"
     path.write_text(BAD["wrong_field_count"] + "\n")
     with pytest.raises(DemandError, match=r"no usable SO6 line \(1 rejected") as e:
         load_demand(path)
     assert "\n" not in str(e.value)
+    for empty in ("", "\n  \n"):  # an empty file, or blank lines only
+        path.write_text(empty)
+        with pytest.raises(DemandError, match="the SO6 file has no lines"):
+            load_demand(path)
     with pytest.raises(DemandError, match="no such SO6 file"):
         load_demand(tmp_path / "missing.so6")
 
@@ -89,3 +103,18 @@ def test_grid_sectorisation_locates_points_and_rejects_bad_grids():
     assert [names[i] if i >= 0 else None for i in idx] == ["R0C0_FL285-355", "R1C3_FL375-480", "R1C1_FL355-375", None, "R0C0_FL375-480"]
     with pytest.raises(SectorFileError, match="fl_edges"):
         GridSectorisation(fl_edges=(300.0, 300.0))
+
+
+def test_sector_file_no_flight_enters_is_one_clear_error(tmp_path):
+    # the same sectors written [lat, lon] instead of GeoJSON's [lon, lat]: they lie in the Indian Ocean
+    doc = json.loads(json.dumps(SECTORS))
+    for f in doc["features"]:
+        f["geometry"]["coordinates"] = [[[lat, lon] for lon, lat in f["geometry"]["coordinates"][0]]]
+    sectors_path = tmp_path / "sectors.geojson"
+    sectors_path.write_text(json.dumps(doc))
+    so6 = tmp_path / "day.so6"
+    so6.write_text("\n".join(GOOD) + "\n")
+    points, flights, _, _ = load_demand(so6)
+    with pytest.raises(SectorFileError, match=r"none of the 2 flights enters any of its 2 sectors \(GeoJSON positions are \[lon, lat\]") as e:
+        airspace_tables(points, flights, GeoJSONSectorisation(str(sectors_path)))
+    assert "\n" not in str(e.value)

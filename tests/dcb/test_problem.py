@@ -79,6 +79,16 @@ def test_optimum_reports_infeasible_within_max_delay():
         solve_optimum(p)
 
 
+def test_fcfs_that_would_run_past_the_hour_grid_is_infeasible():
+    from models.dcb.optimum import InfeasibleError
+
+    # 60 flights in one sector-hour at capacity 1: FCFS would push the last one 59 hours on, past the 48-hour grid
+    p = make_problem([(f"f{i:02d}", "A", 600 + i % 60, 5) for i in range(60)], {"A": 1})
+    with pytest.raises(InfeasibleError, match=r"FCFS needs delays of up to \d+ min, past the problem's 48-hour grid") as e:
+        fcfs(p)
+    assert "\n" not in str(e.value)
+
+
 HAND_BUILT = [("f1", "A", 600, 10), ("f2", "A", 610, 5), ("f3", "A", 659, 20), ("f4", "A", 660, 7), ("f5", "A", 700, 3),
               ("f1", "B", 615, 12), ("f4", "B", 640, 4), ("f5", "B", 750, 6)]
 

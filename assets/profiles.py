@@ -14,3 +14,18 @@ def default_profile() -> str:
     if profile not in PROFILES:
         raise ValueError(f"TRAFFICLEARN_PROFILE={profile!r}: expected one of {', '.join(PROFILES)}")
     return profile
+
+
+def resolve(config, defaults: dict[str, dict]) -> dict:
+    """The config's values for the fields its profile has defaults for: the explicit value, else the profile's.
+
+    `defaults`: profile -> {field: value}. One line, before any work, for an unknown profile, fewer than one
+    episode, or an empty list of seeds."""
+    if config.profile not in defaults:
+        raise ValueError(f"profile {config.profile!r}: expected one of {', '.join(defaults)}")
+    values = {k: v if (v := getattr(config, k, None)) is not None else d for k, d in defaults[config.profile].items()}
+    if values.get("episodes", 1) < 1:
+        raise ValueError(f"episodes {values['episodes']}: expected at least 1")
+    if values.get("seeds", [0]) == []:
+        raise ValueError("seeds is empty: expected at least one seed")
+    return values

@@ -9,7 +9,7 @@ import dagster as dg
 import polars as pl
 from pydantic import Field
 
-from assets.profiles import default_profile
+from assets.profiles import default_profile, resolve
 
 # Profile defaults for the protocol; the learner's own budgets are models.trajectory.applearn.PROFILES.
 PROTOCOL = {
@@ -45,10 +45,8 @@ def applearn_experiments(context: dg.AssetExecutionContext, config: AppLearnConf
     from models.markdown import markdown_table
     from warehouse.artifacts import artifact_path, write_bytes_atomic
 
-    if config.profile not in PROTOCOL:
-        raise ValueError(f"profile must be one of {', '.join(PROTOCOL)}, got '{config.profile}'")
+    protocol = resolve(config, PROTOCOL)
     torch.set_num_threads(1)  # small nets: more threads only add overhead
-    protocol = {k: getattr(config, k) if getattr(config, k) is not None else v for k, v in PROTOCOL[config.profile].items()}
     params = demo_or_paper(config.profile, episodes=config.episodes)
     sets = datasets(tracks_20s, trajectory_modes, protocol["min_flights"])
     todo = [(d, p, s) for d in sets for p in protocol["partitions"] for s in protocol["seeds"]]

@@ -6,19 +6,32 @@ import dagster as dg
 import polars as pl
 from pydantic import Field
 
-from assets.profiles import default_profile
+from assets.profiles import default_profile, resolve
 from models.dcb.experiment import build_problem, case_name, case_row, delay_rows, hotspots_before
 from models.dcb.optimum import InfeasibleError, fcfs, solve_optimum
 from models.dcb.readout import readout_only
 
 # capacity scales of the evaluation cases, easiest first (the demo runs the easiest only)
-PROFILE_SCALES = {"demo": [0.95], "paper": [0.95, 0.9, 0.85, 0.8]}
+PROFILE = {"demo": {"capacity_scales": [0.95]}, "paper": {"capacity_scales": [0.95, 0.9, 0.85, 0.8]}}
 
 
 class CasesConfig(dg.Config):
     profile: str = Field(default=default_profile(), description="demo: case cap95 only; paper: cap95, cap90, cap85, cap80")
     capacity_scales: list[float] | None = Field(default=None, description="capacity scale per case (None: the profile's)")
     max_delay_min: int = Field(default=60, description="MaxDelay: the largest ground delay a learner may give [min]")
+
+
+def case_scales(config: CasesConfig) -> list[float]:
+    """The cases' capacity scales; one line for a config no case can use."""
+    scales = resolve(config, PROFILE)["capacity_scales"]
+    if not scales or min(scales) <= 0:
+        raise ValueError(f"capacity_scales {scales}: expected one or more scales > 0")
+    names = [case_name(s) for s in scales]
+    if len(set(names)) != len(names):
+        raise ValueError(f"capacity_scales {scales} give the cases {names}: a case is named by its scale in whole percent, so each needs its own")
+    if config.max_delay_min < 1:
+        raise ValueError(f"max_delay_min {config.max_delay_min}: expected a whole number of minutes >= 1")
+    return scales
 
 
 def problems(cases: pl.DataFrame, entries: pl.DataFrame, sectors: pl.DataFrame, flights: pl.DataFrame) -> dict:
@@ -34,7 +47,7 @@ def problems(cases: pl.DataFrame, entries: pl.DataFrame, sectors: pl.DataFrame, 
 def dcb_cases(context: dg.AssetExecutionContext, config: CasesConfig, dcb_sector_entries: pl.DataFrame, dcb_sectors: pl.DataFrame,
               dcb_flights: pl.DataFrame):
     rows, hot = [], []
-    for scale in config.capacity_scales or PROFILE_SCALES[config.profile]:
+    for scale in case_scales(config):
         problem = build_problem(dcb_sector_entries, dcb_sectors, dcb_flights, scale, config.max_delay_min)
         rows.append(case_row(case_name(scale), scale, problem))
         hot.append(hotspots_before(case_name(scale), problem))

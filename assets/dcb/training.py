@@ -5,7 +5,7 @@ import polars as pl
 from pydantic import Field
 
 from assets.dcb.cases import problems
-from assets.profiles import default_profile
+from assets.profiles import default_profile, resolve
 from models.dcb.experiment import delay_rows
 from models.dcb.mirl import LEARNING_RATE
 from models.dcb.train import METHODS, train
@@ -27,14 +27,19 @@ class TrainingConfig(dg.Config):
                          "and unneeded delay trimmed; best_episode: the two as they are (the better one is returned)")
 
 
+def training_plan(config: TrainingConfig) -> dict:
+    """episodes and seeds of the config or its profile; one line, before any training, for an unknown or no method."""
+    unknown = sorted(set(config.methods) - set(METHODS))
+    if unknown or not config.methods:
+        raise ValueError(f"DCB methods {unknown or 'none'}: expected one or more of {', '.join(METHODS)}")
+    return resolve(config, PROFILE)
+
+
 @dg.asset(group_name="dcb", description="Ground delay of every flight in each learner's solution, per case and seed.")
 def dcb_delays(context: dg.AssetExecutionContext, config: TrainingConfig, dcb_cases: pl.DataFrame, dcb_sector_entries: pl.DataFrame,
                dcb_sectors: pl.DataFrame, dcb_flights: pl.DataFrame) -> dg.Output:
-    prof = PROFILE[config.profile]
-    episodes, seeds = config.episodes or prof["episodes"], config.seeds if config.seeds is not None else prof["seeds"]
-    unknown = set(config.methods) - set(METHODS)
-    if unknown:
-        raise ValueError(f"unknown DCB methods {sorted(unknown)}: expected some of {', '.join(METHODS)}")
+    plan = training_plan(config)
+    episodes, seeds = plan["episodes"], plan["seeds"]
     frames, runs = [], []
     for case, problem in problems(dcb_cases, dcb_sector_entries, dcb_sectors, dcb_flights).items():
         for method in config.methods:

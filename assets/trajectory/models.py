@@ -9,7 +9,7 @@ import dagster as dg
 import polars as pl
 from pydantic import Field
 
-from assets.profiles import default_profile
+from assets.profiles import default_profile, resolve
 from warehouse.artifacts import artifact_path
 
 
@@ -24,16 +24,6 @@ class TrajectoryModelsConfig(dg.Config):
     workers: int | None = Field(default=None, description="bundles trained in parallel, one process (one core) each [None: the usable cores]")
 
 
-def resolve(config: dg.Config, field_names: tuple[str, ...]) -> dict:
-    """Explicit config values, else the profile's defaults."""
-    from models.trajectory.training import PROFILE_DEFAULTS
-
-    if config.profile not in PROFILE_DEFAULTS:
-        raise ValueError(f"profile must be one of {', '.join(PROFILE_DEFAULTS)}, got '{config.profile}'")
-    defaults = PROFILE_DEFAULTS[config.profile]
-    return {k: getattr(config, k) if getattr(config, k) is not None else defaults[k] for k in field_names}
-
-
 @dg.asset(group_name="trajectory", description="Trained multi-modal GAIL (MMIL, SMIL) and BC models per seed; one model file each.")
 def trajectory_models(context: dg.AssetExecutionContext, config: TrajectoryModelsConfig, tracks_20s: pl.DataFrame,
                       trajectory_modes: pl.DataFrame, flights: pl.DataFrame, flight_splits: pl.DataFrame, weather: pl.DataFrame):
@@ -42,10 +32,10 @@ def trajectory_models(context: dg.AssetExecutionContext, config: TrajectoryModel
     from models.trajectory.ppo import DISCRIMINATORS
     from models.markdown import markdown_table
     from models.parallel import ProcessPool, usable_cores
-    from models.trajectory.training import Budget, prepare, runs, train_and_save
+    from models.trajectory.training import PROFILE_DEFAULTS, Budget, prepare, runs, train_and_save
 
     torch.set_num_threads(1)  # small nets; with 2 threads on a busy 2-core machine OpenMP contention made training ~10x slower
-    p = resolve(config, ("seeds", "bc_epochs", "gail_iterations", "discriminators", "algorithms"))
+    p = resolve(config, PROFILE_DEFAULTS)
     if bad := [d for d in p["discriminators"] if d not in DISCRIMINATORS]:
         raise ValueError(f"discriminators: unknown {bad}, expected {DISCRIMINATORS}")
     setup = prepare(tracks_20s, trajectory_modes, flights, flight_splits, weather, config.dt_s)

@@ -7,7 +7,7 @@ import numpy as np
 import polars as pl
 from pydantic import Field
 
-from assets.profiles import default_profile
+from assets.profiles import default_profile, resolve
 from warehouse.artifacts import artifact_path
 
 # per profile: episodes per (scenario, method, seed), seeds, and the scenarios some methods are limited to (the others
@@ -38,6 +38,22 @@ class TrainingConfig(dg.Config):
     )
 
 
+def training_plan(config: TrainingConfig, trained_scenarios: list[str]) -> dict:
+    """episodes, seeds and method_scenarios of the config or its profile; one line, before any episode, for a config
+    that would fail after hours of training or train nothing (an unknown method or scenario, no method)."""
+    from models.urban.experiments import METHODS_RL
+
+    plan = resolve(config, PROFILE)
+    only_on = plan["method_scenarios"]
+    unknown = sorted((set(config.methods) | set(only_on)) - set(METHODS_RL))
+    if unknown or not config.methods:
+        raise ValueError(f"urban methods {unknown or 'none'}: expected one or more of {', '.join(METHODS_RL)}")
+    strangers = sorted({s for names in only_on.values() for s in names} - set(trained_scenarios))
+    if strangers:
+        raise ValueError(f"method_scenarios names {strangers}, not trained scenarios: expected some of {', '.join(trained_scenarios)}")
+    return plan
+
+
 @dg.asset(group_name="urban", description="DDQN route agents trained per scenario, method and seed; training log and model files.")
 def urban_training(context: dg.AssetExecutionContext, config: TrainingConfig, urban_scenarios: pl.DataFrame, urban_routes: pl.DataFrame) -> dg.Output:
     import torch
@@ -47,10 +63,9 @@ def urban_training(context: dg.AssetExecutionContext, config: TrainingConfig, ur
     from models.parallel import ProcessPool, usable_cores
 
     torch.set_num_threads(1)
-    prof = PROFILE[config.profile]
-    episodes, seeds = config.episodes or prof["episodes"], config.seeds if config.seeds is not None else prof["seeds"]
-    only_on = config.method_scenarios if config.method_scenarios is not None else prof["method_scenarios"]
     train = urban_scenarios.filter(pl.col("role") == "train")
+    plan = training_plan(config, train["scenario"].unique(maintain_order=True).to_list())
+    episodes, seeds, only_on = plan["episodes"], plan["seeds"], plan["method_scenarios"]
     frames, timings, learner_cpu = [], {}, {}  # learner CPU: this process (gradient steps), whatever the machine's load
     with ProcessPool(config.workers or usable_cores(), col_marl.run_episode) as pool:
         for (scenario,), g in train.group_by("scenario", maintain_order=True):

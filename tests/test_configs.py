@@ -1,0 +1,52 @@
+"""Configs that no run can use are one clear line before any work, in every system; unset fields take the profile's."""
+
+import pytest
+
+from assets.applearn.models import PROTOCOL, AppLearnConfig
+from assets.dcb.cases import CasesConfig, case_scales
+from assets.dcb.training import TrainingConfig as DCBTrainingConfig
+from assets.dcb.training import training_plan as dcb_plan
+from assets.profiles import resolve
+from assets.trajectory.models import TrajectoryModelsConfig
+from assets.urban.training import TrainingConfig as UrbanTrainingConfig
+from assets.urban.training import training_plan as urban_plan
+from models.trajectory.training import PROFILE_DEFAULTS
+
+TRAINED = ["sc1", "real_cr"]
+
+
+def test_unset_fields_take_the_profile_and_set_ones_win():
+    assert dcb_plan(DCBTrainingConfig(profile="demo")) == {"episodes": 200, "seeds": [0, 1, 2]}
+    assert dcb_plan(DCBTrainingConfig(profile="paper", seeds=[3])) == {"episodes": 15000, "seeds": [3]}
+    assert case_scales(CasesConfig(profile="paper")) == [0.95, 0.9, 0.85, 0.8]
+    assert case_scales(CasesConfig(capacity_scales=[1.0, 0.9], max_delay_min=30)) == [1.0, 0.9]
+    assert urban_plan(UrbanTrainingConfig(profile="demo"), TRAINED) == {
+        "episodes": 50, "seeds": [0], "method_scenarios": {"ch3_dqn_cnn": ["sc1"], "i_marl": ["sc1"]}}
+    assert urban_plan(UrbanTrainingConfig(episodes=2, methods=["col_marl"], method_scenarios={"col_marl": ["real_cr"]}), TRAINED)[
+        "method_scenarios"] == {"col_marl": ["real_cr"]}
+    # a field left at None takes the profile's value, also when it is falsy in the config's own type
+    assert resolve(TrajectoryModelsConfig(profile="demo", gail_iterations=0), PROFILE_DEFAULTS)["gail_iterations"] == 0
+    assert resolve(TrajectoryModelsConfig(profile="paper"), PROFILE_DEFAULTS)["bc_epochs"] == 200
+
+
+@pytest.mark.parametrize("check, message", [
+    (lambda: dcb_plan(DCBTrainingConfig(profile="fast")), "profile 'fast': expected one of demo, paper"),
+    (lambda: dcb_plan(DCBTrainingConfig(episodes=0)), "episodes 0: expected at least 1"),
+    (lambda: dcb_plan(DCBTrainingConfig(seeds=[])), "seeds is empty"),
+    (lambda: dcb_plan(DCBTrainingConfig(methods=["HCMARL2", "MIRL"])), r"DCB methods \['HCMARL2'\]: expected one or more of MIRL"),
+    (lambda: dcb_plan(DCBTrainingConfig(methods=[])), "DCB methods none"),
+    (lambda: case_scales(CasesConfig(capacity_scales=[0.951, 0.949])), r"give the cases \['cap95', 'cap95'\]"),
+    (lambda: case_scales(CasesConfig(capacity_scales=[])), "expected one or more scales > 0"),
+    (lambda: case_scales(CasesConfig(capacity_scales=[0.9, -0.5])), "expected one or more scales > 0"),
+    (lambda: case_scales(CasesConfig(max_delay_min=0)), "max_delay_min 0"),
+    (lambda: urban_plan(UrbanTrainingConfig(methods=["col_marl", "colmarl"]), TRAINED), r"urban methods \['colmarl'\]"),
+    (lambda: urban_plan(UrbanTrainingConfig(method_scenarios={"col_marl": ["Sc1"]}), TRAINED), r"names \['Sc1'\], not trained scenarios"),
+    (lambda: urban_plan(UrbanTrainingConfig(episodes=-3), TRAINED), "episodes -3"),
+    (lambda: resolve(TrajectoryModelsConfig(profile="thesis"), PROFILE_DEFAULTS), "profile 'thesis'"),
+    (lambda: resolve(TrajectoryModelsConfig(seeds=[]), PROFILE_DEFAULTS), "seeds is empty"),
+    (lambda: resolve(AppLearnConfig(seeds=[]), PROTOCOL), "seeds is empty"),
+])
+def test_unusable_config_is_one_line(check, message):
+    with pytest.raises(ValueError, match=message) as e:
+        check()
+    assert "\n" not in str(e.value)

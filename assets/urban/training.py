@@ -59,7 +59,7 @@ def urban_training(context: dg.AssetExecutionContext, config: TrainingConfig, ur
     import torch
 
     from models.urban import col_marl
-    from models.urban.experiments import METHODS_RL, files_of, route_agents
+    from models.urban.experiments import METHODS_RL, files_of, route_agents, training_frame
     from models.parallel import ProcessPool, usable_cores
 
     torch.set_num_threads(1)
@@ -85,8 +85,7 @@ def urban_training(context: dg.AssetExecutionContext, config: TrainingConfig, ur
                                 "gradient_steps": config.gradient_steps}, path)
                     timings[f"{scenario}/{method}/seed{seed}"] = round(time.perf_counter() - t, 1)
                     learner_cpu[f"{scenario}/{method}/seed{seed}"] = round(time.process_time() - cpu, 1)
-                    frames.append(pl.DataFrame(rows).with_columns(
-                        scenario=pl.lit(scenario), method=pl.lit(method), seed=pl.lit(seed, pl.Int64), model_path=pl.lit(str(path))))
+                    frames.append(training_frame(rows, scenario, method, seed, str(path)))
     df = pl.concat(frames).select("scenario", "method", "seed", "agent", "episode", "return", "epsilon", "loss", "model_path")
     last = df.filter(pl.col("episode") >= episodes - max(episodes // 10, 1)).group_by("scenario", "method").agg(
         pl.col("return").mean().alias("mean_return_last_10pct"))

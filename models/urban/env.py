@@ -43,7 +43,7 @@ import gymnasium
 import numpy as np
 from pettingzoo import ParallelEnv
 
-from models.urban.network import read_net
+from models.urban.network import UrbanInputError, read_net
 from models.urban.scenarios import ACTIONS_MPS2, MIN_GAP_M, VEHICLE_TYPES
 from models.urban.sim import ACTION_S, SPEED_MODE_CAR_FOLLOWING, SPEED_MODE_FREE, ScenarioFiles, Simulation
 
@@ -315,6 +315,8 @@ class UrbanParallelEnv(ParallelEnv):
         self.positions = record  # x, y and acceleration are read only for recordings (the state does not use them)
         # Krauss: its safe speed is only the stopping-distance bound behind the leader (IDM's would impose IDM's acceleration law)
         self.speed_mode, self.driver_model = (SPEED_MODE_CAR_FOLLOWING, "Krauss") if leader_guard else (SPEED_MODE_FREE, "IDM")
+        if not Path(files.routes).is_file():  # read here, before the Simulation would check it
+            raise UrbanInputError(f"{files.routes}: scenario file not found")
         text = Path(files.routes).read_text()
         self.possible_agents = re.findall(r'<vehicle id="([^"]+)"', text)
         self.routes = {rid: edges.split() for rid, edges in re.findall(r'<route id="([^"]+)" edges="([^"]*)"', text)}

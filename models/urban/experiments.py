@@ -121,6 +121,15 @@ def routes_table(specs: list[NetworkSpec], out_dir: Path, seed: int) -> pl.DataF
     )
 
 
+def training_frame(rows: list[dict], scenario: str, method: str, seed: int, model_path: str) -> pl.DataFrame:
+    """urban_training rows of one policy set. An agent with no vehicle in an episode has no return, one with an empty
+    buffer no loss: null, not NaN, so that SQL aggregates (avg) and the metadata's means skip them."""
+    return pl.DataFrame(rows).with_columns(
+        pl.col("return", "loss").fill_nan(None), scenario=pl.lit(scenario), method=pl.lit(method), seed=pl.lit(seed, pl.Int64),
+        model_path=pl.lit(model_path),
+    )
+
+
 def demand_seed(scenario: str, copy: int) -> int:
     """Distinct, stable seeds per scenario and copy (train and eval copies never share one)."""
     return zlib.crc32(scenario.encode()) % 1_000_000 * 1000 + copy

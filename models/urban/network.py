@@ -17,6 +17,10 @@ import numpy as np
 import sumolib
 
 SIGNAL_FREE_TYPES = {"right_before_left", "dead_end"}
+# SUMO cannot insert a vehicle at the 10 m/s entry speed on a shorter entry road (its length, gap and braking distance
+# before the junction): its vehicles would wait outside the network all episode (Monaco's 7.5-19.9 m entries; on a test
+# grid buses failed on 27.8 m and entered on 32.8 m). Sc1 and the bundled Bologna network have no entry under 53 m.
+MIN_ENTRY_ROAD_M = 35.0
 
 
 class UrbanInputError(ValueError):
@@ -140,14 +144,15 @@ def junction_census(path: Path) -> JunctionCensus:
 def enumerate_routes(path: Path, max_routes: int, seed: int, max_length_m: float = float("inf")) -> list[dict]:
     """Route agents' routes: shortest paths between the network's entry and exit roads that cross at least
     one junction. An entry road starts at a node no other road leads into (a fringe), an exit road ends at
-    one no other road leaves; U-turns back onto the same street are excluded. If there are more pairs than
+    one no other road leaves; U-turns back onto the same street and entry roads shorter than MIN_ENTRY_ROAD_M are excluded. If there are more pairs than
     `max_routes`, a seeded sample keeps them (Table 4.2: 12 / 24 / 32 routes for Sc1 / Sc2 / Sc4).
     Routes longer than `max_length_m` are left out (the demo profile keeps the real network's routes short)."""
     net = read_net(path)
     edges = [e for e in net.getEdges() if e.allows("passenger") and e.getFunction() == ""]
 
     # the reverse of an edge (same street, other direction) does not count as another road
-    sources = [e for e in edges if all(x.getFromNode() is e.getToNode() for x in e.getFromNode().getIncoming())]
+    sources = [e for e in edges if all(x.getFromNode() is e.getToNode() for x in e.getFromNode().getIncoming())
+               and e.getLength() >= MIN_ENTRY_ROAD_M]
     sinks = [e for e in edges if all(x.getToNode() is e.getFromNode() for x in e.getToNode().getOutgoing())]
     routes = []
     for s in sources:
@@ -158,7 +163,7 @@ def enumerate_routes(path: Path, max_routes: int, seed: int, max_length_m: float
             if path_edges and len(path_edges) >= 2 and sum(e.getLength() for e in path_edges) <= max_length_m:
                 routes.append(path_edges)
     if not routes:
-        raise UrbanInputError(f"{path}: no route between entry and exit roads crosses a junction")
+        raise UrbanInputError(f"{path}: no route between entry roads of >= {MIN_ENTRY_ROAD_M:.0f} m and exit roads crosses a junction")
     rng = np.random.default_rng(seed)
     if len(routes) > max_routes:
         routes = [routes[i] for i in sorted(rng.choice(len(routes), max_routes, replace=False))]

@@ -182,7 +182,8 @@ class Simulation:
         try:
             ls.start(args)
         except ls.TraCIException as e:
-            raise UrbanInputError(f"{self.files.routes}: SUMO cannot load the scenario ({e})") from None
+            reason = " ".join(str(e).split())  # SUMO's message spans lines
+            raise UrbanInputError(f"{self.files.routes}: SUMO cannot load the scenario ({reason})") from None
         self.ls, self.tally = ls, Tally()
         self.new_collisions: set = set()
         self.new_teleports: set = set()

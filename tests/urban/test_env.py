@@ -176,10 +176,14 @@ def test_bad_route_file_gives_one_clear_line(tmp_path, sc1_net):
     broken = tmp_path / "c" / "broken.rou.xml"
     broken.write_text('<routes><route id="r" edges="no_such_edge"/><vehicle id="r.car.0" type="car" route="r" depart="0"/></routes>')
     sim = Simulation(ScenarioFiles(files.net, str(broken), files.folder, 0.0, 40.0))
-    with pytest.raises(UrbanInputError, match="broken.rou.xml: SUMO cannot load"):
+    with pytest.raises(UrbanInputError, match="broken.rou.xml: SUMO cannot load.*no_such_edge") as e:
         sim.start()
+    assert "\n" not in str(e.value)
+    missing = ScenarioFiles(files.net, str(tmp_path / "none.rou.xml"), files.folder, 0.0, 40.0)
     with pytest.raises(UrbanInputError, match="scenario file not found"):
-        Simulation(ScenarioFiles(files.net, str(tmp_path / "none.rou.xml"), files.folder, 0.0, 40.0))
+        Simulation(missing)
+    with pytest.raises(UrbanInputError, match="none.rou.xml: scenario file not found"):
+        UrbanParallelEnv(missing)
 
 
 def _same_route_copy(folder, net, departs):

@@ -23,6 +23,13 @@ def test_artificial_networks_are_unsignalized_grids(tmp_path, n, roads, pairs):
     assert len(sampled) == min(5, pairs) and sampled == enumerate_routes(net, 5, 0)
 
 
+def test_entry_roads_too_short_to_insert_a_vehicle_give_no_route(tmp_path):
+    # 30 m arms leave 22.8 m entry roads after the junction's shape: SUMO inserts no bus there at the 10 m/s entry speed
+    net = artificial_network(1, tmp_path / "short.net.xml", road_length_m=30.0)
+    with pytest.raises(UrbanInputError, match=r"no route between entry roads of >= 35 m and exit roads"):
+        enumerate_routes(net, 100, 0)
+
+
 def test_bundled_real_network_loses_its_lights_and_priorities(tmp_path):
     net = sumo_network(REAL_NET, tmp_path / "real.net.xml", speed_mps=30.0)
     census = junction_census(net)

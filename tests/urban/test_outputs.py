@@ -40,3 +40,14 @@ def test_trajectories_profile_and_recording(tmp_path, sc1_net):
     rrd = write_episode_recording(crossing, str(sc1_net), tmp_path / "ep.rrd", "test")
     entities = {str(c.entity_path) for c in rr.chunk.RrdReader(rrd).stream()}
     assert {"/vehicles", "/network/lanes"} <= entities and sum(e.startswith("/collisions/") for e in entities) == 2
+
+
+def test_training_rows_without_return_or_loss_are_null_not_nan():
+    from models.urban.experiments import training_frame
+
+    rows = [{"agent": "r000:car", "episode": 0, "return": 0.5, "epsilon": 0.9, "loss": float("nan")},
+            {"agent": "r000:heavy", "episode": 0, "return": float("nan"), "epsilon": 0.9, "loss": 0.25}]
+    df = training_frame(rows, "sc1", "col_marl", 0, "/m.pt")
+    assert df["return"].to_list() == [0.5, None] and df["loss"].to_list() == [None, 0.25]
+    assert df.select(pl.col("return").mean()).item() == 0.5  # a mean over the agents, not NaN
+    assert df.select("scenario", "method", "seed", "model_path").unique().rows() == [("sc1", "col_marl", 0, "/m.pt")]

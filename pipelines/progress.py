@@ -62,7 +62,9 @@ class ProgressHandler(logging.Handler):
         elif kind == "ASSET_CHECK_EVALUATION" and not event.asset_check_evaluation_data.passed:
             # Dagster logs a failed check at DEBUG and its step still succeeds: say so, or the terminal shows only "done"
             check = event.asset_check_evaluation_data
-            self._print(f"{check.severity.value} {step}: check {check.check_name} on {check.asset_key.to_user_string()} did not pass")
+            facts = ", ".join(f"{k}={v.value}" for k, v in check.metadata.items())  # what the check measured
+            self._print(f"{check.severity.value} {step}: check {check.check_name} on {check.asset_key.to_user_string()} did not pass"
+                        + (f": {facts[:300]}" if facts else ""))
         if kind in ("PIPELINE_SUCCESS", "PIPELINE_FAILURE"):  # the run ended (these are the run events' values)
             self.bar.close()
 

@@ -26,7 +26,7 @@ def broken(upstream: int) -> int:
 
 @dg.asset_check(asset=upstream)
 def upstream_is_odd() -> dg.AssetCheckResult:
-    return dg.AssetCheckResult(passed=False, severity=dg.AssetCheckSeverity.WARN)
+    return dg.AssetCheckResult(passed=False, severity=dg.AssetCheckSeverity.WARN, metadata={"smallest": 2})
 
 
 @dg.asset_check(asset=upstream)
@@ -62,7 +62,7 @@ def test_a_failed_check_is_printed_though_its_step_succeeds(tmp_path, monkeypatc
     ok, _ = materialize.run(_job(upstream, checks=[upstream_is_odd, upstream_is_positive]), "toy", dg.DagsterInstance.ephemeral())
     err = capsys.readouterr().err
     assert ok
-    assert "WARN upstream_upstream_is_odd: check upstream_is_odd on upstream did not pass" in err
+    assert "WARN upstream_upstream_is_odd: check upstream_is_odd on upstream did not pass: smallest=2" in err
     assert "upstream_is_positive on upstream did not pass" not in err
 
 

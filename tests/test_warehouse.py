@@ -45,6 +45,20 @@ def test_atomic_write_leaves_old_file_on_failure(monkeypatch):
     assert [p.name for p in path.parent.iterdir()] == ["data.parquet"]
 
 
+def test_written_files_follow_the_umask():
+    """Not mkstemp's 0600: others may read the warehouse, plots and recordings as the umask allows."""
+    import os
+
+    from warehouse.artifacts import save_plot
+
+    old = os.umask(0o022)
+    try:
+        paths = [storage.write_table("ingest_summary", _summary()), save_plot("p", b"png")[0]]
+    finally:
+        os.umask(old)
+    assert [oct(p.stat().st_mode & 0o777) for p in paths] == [oct(0o644)] * 2
+
+
 def test_partitioned_table_view():
     storage.write_table("ingest_summary", _summary(2), partition={"partition": "a"})
     storage.write_table("ingest_summary", _summary(3), partition={"partition": "b"})

@@ -2,10 +2,9 @@
 
 import base64
 import os
-import tempfile
 from pathlib import Path
 
-from warehouse.storage import home
+from warehouse.storage import home, temp_beside
 
 
 def artifact_path(kind: str, name: str) -> Path:
@@ -15,10 +14,9 @@ def artifact_path(kind: str, name: str) -> Path:
 
 
 def write_bytes_atomic(path: Path, data: bytes) -> Path:
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", dir=path.parent)
+    tmp = temp_beside(path)
     try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
+        Path(tmp).write_bytes(data)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)

@@ -63,13 +63,23 @@ def conform(table: str, df: pl.DataFrame) -> pa.Table:
         raise SchemaError(f"table '{table}': {e}") from None
 
 
+def temp_beside(path: Path, suffix: str = "") -> str:
+    """A new temp file in `path`'s folder, to be renamed onto `path`, with the permissions a plain open() would
+    give (umask applied): mkstemp's 0600 would leave every table, plot and model unreadable to other accounts."""
+    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=suffix, dir=path.parent)
+    umask = os.umask(0)
+    os.umask(umask)
+    os.fchmod(fd, 0o666 & ~umask)
+    os.close(fd)
+    return tmp
+
+
 def write_table(table: str, df: pl.DataFrame, partition: dict[str, str] | None = None) -> Path:
     """Enforce the schema, then write atomically (temp file + rename). Returns the final path."""
     arrow = conform(table, df)
     path = table_path(table, partition)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".parquet", dir=path.parent)
-    os.close(fd)
+    tmp = temp_beside(path, ".parquet")
     try:
         pq.write_table(arrow, tmp, compression="zstd")
         os.replace(tmp, path)

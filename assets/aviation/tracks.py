@@ -8,7 +8,7 @@ from models.aviation.airports import airports_table
 from models.aviation.phases import PhaseConfig, assign_phases, phase_table
 from models.aviation.plots import altitude_profiles_by_phase
 from models.aviation.resample import resample
-from models.aviation.weather import ALIGNMENTS, sample_weather, weather_time_range
+from models.aviation.weather import ALIGNMENTS, sample_weather, share_outside_levels, weather_time_range
 from warehouse.artifacts import save_plot
 
 _P = PhaseConfig()
@@ -40,6 +40,11 @@ def tracks_20s(
     grid = resample(flight_tracks, config.dt_s)
     met = sample_weather(weather, grid["ts"], grid["lat"].to_numpy(), grid["lon"].to_numpy(), grid["alt_m"].to_numpy(), alignment=config.weather_alignment)
     grid = grid.with_columns(**{k: pl.Series(v) for k, v in met.items()})
+    clamped = share_outside_levels(weather, grid["alt_m"].to_numpy())
+    if clamped > 0.01:
+        levels = weather["level_hpa"]
+        context.log.warning(f"{clamped:.0%} of the points fly outside the weather's levels ({levels.min():g}-{levels.max():g} hPa) "
+                            "and get the nearest level's temperature and wind")
     phase_cfg = PhaseConfig(
         method=config.phase_method,
         climb_rate_mps=config.climb_rate_mps,
@@ -58,6 +63,7 @@ def tracks_20s(
         metadata={
             "dt_s": config.dt_s,
             "weather_alignment": config.weather_alignment,
+            "share_outside_weather_levels": round(clamped, 4),
             "weather_time_range": f"{w0} .. {w1}",
             "flights_time_range": f"{tracks['ts'].min()} .. {tracks['ts'].max()}",
             "phase_method": config.phase_method,

@@ -16,7 +16,6 @@ over a few hundred km), z = altitude in km multiplied by `vertical_exaggeration`
 from __future__ import annotations
 
 import os
-import tempfile
 import uuid
 from pathlib import Path
 
@@ -26,6 +25,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from models.aviation.plots import MODE_COLORS
+from warehouse.storage import temp_beside
 
 EARTH_RADIUS_KM = 6371.0
 APPLICATION_ID = "trafficlearn_modes"
@@ -79,8 +79,7 @@ def write_modes_recording(
     runs = pts.group_by("flight_id", maintain_order=True).agg(pl.col("route", "mode").first(), n=pl.len())
     bounds = np.concatenate([[0], np.cumsum(runs["n"].to_numpy().astype(np.int64))])
 
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".rrd", dir=path.parent)
-    os.close(fd)
+    tmp = temp_beside(path, ".rrd")
     try:
         rec = rr.RecordingStream(APPLICATION_ID, recording_id=uuid.uuid4())
         rec.save(tmp, default_blueprint=_blueprint(vertical_exaggeration))  # sink first, then log

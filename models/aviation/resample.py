@@ -30,6 +30,8 @@ def resample(tracks: pl.DataFrame, dt_s: float = 20.0) -> pl.DataFrame:
     """Cleaned points (flight_id, ts, lat, lon, alt_m, groundspeed_mps, track_deg, vertical_rate_mps)
     -> the same columns on the Δt grid. Flights shorter than one step are dropped."""
     dt_us = int(round(dt_s * US))
+    if dt_us <= 0:  # a zero step is one point per flight, a negative one no points: never a table to keep
+        raise ValueError(f"dt_s must be a positive step in seconds, got {dt_s:g}")
     src = in_flight_order(tracks)
     # flights are contiguous after the sort: run ids number them without hashing the string ids
     idx, starts = runs(src["flight_id"])

@@ -184,9 +184,14 @@ def _detect_format(path: Path) -> str:
 def _libsumo_before_eccodes() -> None:
     """eccodes' wheels (loaded by cfgrib, also through xarray's backend discovery) put their bundled C
     libraries (proj, sqlite, krb5, ...) in the global symbol namespace; a libsumo imported after them binds
-    to those copies and the process dies at exit with a double free. Imported first, each keeps its own."""
+    to those copies and the process dies at exit with a double free. Imported first, each keeps its own.
+    Its import prints a pyarrow-version notice meant for SUMO users, not for someone reading weather: hidden."""
+    import contextlib
+    import io
+
     try:
-        import libsumo  # noqa: F401
+        with contextlib.redirect_stdout(io.StringIO()):
+            import libsumo  # noqa: F401
     except ImportError:  # no urban system installed: nothing to protect
         pass
 
@@ -465,6 +470,14 @@ def isa_pressure_hpa(alt_m: np.ndarray) -> np.ndarray:
     t_up = _T_TROPOPAUSE + _LAPSE_STRATO * h_up
     p_up = _P_STRATO * (t_up / _T_TROPOPAUSE) ** (-_G0 / (_R_AIR * _LAPSE_STRATO))
     return np.where(h > _H_STRATO, p_up, p)
+
+
+def share_outside_levels(weather: pl.DataFrame, alt_m: np.ndarray) -> float:
+    """Share of altitudes whose ISA pressure lies above the weather's highest or below its lowest level:
+    `sample_weather` gives those the nearest level's values (a 200-300 hPa file: a climb at 1 km gets 300 hPa air)."""
+    p = isa_pressure_hpa(alt_m)
+    lo, hi = weather["level_hpa"].min(), weather["level_hpa"].max()
+    return float(np.mean((p < lo) | (p > hi))) if p.size else 0.0
 
 
 def isa_altitude_m(pressure_hpa: np.ndarray) -> np.ndarray:

@@ -36,6 +36,8 @@ def read_first_states(path: str | Path) -> pl.DataFrame:
     missing = [c for c in REQUIRED if c not in df.columns]
     if missing:
         raise PredictionInputError(f"flights file {path}: missing column(s) {', '.join(missing)} (need {', '.join(REQUIRED)})")
+    if df.is_empty():  # before the type checks: a header-only CSV has string columns
+        raise PredictionInputError(f"flights file {path}: no rows")
     if not df.schema["ts"].is_temporal():
         raise PredictionInputError(f"flights file {path}: column ts must be a UTC timestamp, got {df.schema['ts']}")
     try:
@@ -45,11 +47,17 @@ def read_first_states(path: str | Path) -> pl.DataFrame:
     first = df.sort("flight_id", "ts").group_by("flight_id", maintain_order=True).first()
     if first.is_empty():
         raise PredictionInputError(f"flights file {path}: no rows")
-    bad = first.filter(~pl.col("lat").is_between(-90, 90) | ~pl.col("lon").is_between(-180, 180) | pl.col("lat").is_null() | pl.col("lon").is_null())
+    # the first state is the whole input: a missing value would roll out NaN, -5 km would "fly" underground
+    gaps = first.filter(pl.any_horizontal(pl.col(c).is_null() | pl.col(c).is_nan() for c in ("lon", "lat", "alt_m")))
+    if not gaps.is_empty():
+        raise PredictionInputError(f"flights file {path}: missing or NaN lon/lat/alt_m in the first state of flight {gaps['flight_id'][0]}")
+    bad = first.filter(~pl.col("lat").is_between(-90, 90) | ~pl.col("lon").is_between(-180, 180))
     if not bad.is_empty():
         raise PredictionInputError(f"flights file {path}: lat/lon out of range (degrees expected) for flight {bad['flight_id'][0]}")
     if (first["alt_m"] > 20_000).any():
         raise PredictionInputError(f"flights file {path}: column alt_m above 20,000 — feet instead of metres?")
+    if (first["alt_m"] < -500).any():
+        raise PredictionInputError(f"flights file {path}: column alt_m below -500 m")
     return first
 
 

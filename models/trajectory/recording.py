@@ -8,7 +8,6 @@ built by `points_for_recording`. rerun entity paths: `flights/<flight_id>/<sourc
 
 import json
 import os
-import tempfile
 import uuid
 from pathlib import Path
 
@@ -19,6 +18,7 @@ import rerun.blueprint as rrb
 
 from models.aviation.plots import MODE_COLORS
 from models.aviation.recording import _local_frame
+from warehouse.storage import temp_beside
 
 APPLICATION_ID = "trafficlearn_trajectory_predictions"
 ACTUAL_COLOR = np.array([220, 30, 30], dtype=np.uint8)
@@ -57,8 +57,7 @@ def _color(source: str, sources: list[str]) -> np.ndarray:
 
 def _atomic(path: Path, suffix: str, write) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=suffix, dir=path.parent)
-    os.close(fd)
+    tmp = temp_beside(path, suffix)
     try:
         write(tmp)
         os.replace(tmp, path)

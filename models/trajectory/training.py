@@ -12,7 +12,7 @@ import torch
 
 from models.trajectory import sinfo_gail, triple_gail
 from models.trajectory.bc import train_bc, train_mode_classifier
-from models.trajectory.data import PHASES, Demonstrations, demonstrations, per_route
+from models.trajectory.data import PHASES, Demonstrations, TrajectoryDataError, demonstrations, per_route
 from models.trajectory.env import EnvConfig, TrajectoryEnv, WeatherCube
 from models.trajectory.model import TrajectoryModel
 from models.trajectory.nets import Policy, Selector
@@ -46,6 +46,11 @@ class Setup:
 
 def prepare(tracks: pl.DataFrame, modes: pl.DataFrame, flights: pl.DataFrame, splits: pl.DataFrame,
             weather: pl.DataFrame, dt_s: float) -> Setup:
+    # the actions are per step: 10 s tracks read as 20 s ones halve every speed and double every time
+    step_s = tracks.select(pl.col("ts").diff().over("flight_id").dt.total_microseconds().mode().first()).item()
+    if step_s is not None and step_s / 1e6 != dt_s:
+        raise TrajectoryDataError(f"tracks_20s has a {step_s / 1e6:g} s step but dt_s is {dt_s:g} s: "
+                                  "set dt_s of trajectory_models and trajectory_evaluation to the tracks' step")
     demos = {p: demonstrations(tracks, modes, flights, splits, p) for p in (*PHASES, "all")}
     bbox = (float(tracks["lon"].min()), float(tracks["lat"].min()), float(tracks["lon"].max()), float(tracks["lat"].max()))
     when_us = int(tracks["ts"].dt.epoch("us").median())

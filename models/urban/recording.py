@@ -5,7 +5,6 @@ Open with `rerun <file>.rrd`. Written offline into a file sink (temp file + rena
 """
 
 import os
-import tempfile
 import uuid
 from pathlib import Path
 
@@ -14,6 +13,7 @@ import polars as pl
 import rerun as rr
 
 from models.urban.network import read_net
+from warehouse.storage import temp_beside
 
 
 def _agent_colors(agents: list[str]) -> dict[str, np.ndarray]:
@@ -30,8 +30,7 @@ def write_episode_recording(traj: pl.DataFrame, net_path: str, path: Path, title
     net = read_net(net_path)
     lanes = [np.array(ln.getShape(), np.float32) for e in net.getEdges() for ln in e.getLanes()]
     colors = _agent_colors(traj["agent"].unique().to_list())
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".rrd", dir=path.parent)
-    os.close(fd)
+    tmp = temp_beside(path, ".rrd")
     try:
         rec = rr.RecordingStream("trafficlearn_urban", recording_id=uuid.uuid4())
         rec.save(tmp)

@@ -112,9 +112,10 @@ def test_bad_input_gives_one_line_error(tmp_path, small_raw, make, message):
     assert "\n" not in text
 
 
-def test_traffic_altitude_in_metres_is_refused(tmp_path, small_raw):
+@pytest.mark.parametrize("to_unit", [1.0, 3.0], ids=["metres", "thirds"])
+def test_traffic_altitude_in_metres_is_refused(tmp_path, small_raw, to_unit):
     traffic = small_raw.select(
-        timestamp="time", icao24="icao24", latitude="lat", longitude="lon", altitude=pl.col("baroaltitude") / 3.0,
+        timestamp="time", icao24="icao24", latitude="lat", longitude="lon", altitude=pl.col("baroaltitude") / to_unit,
         groundspeed=pl.col("velocity") / KT,
     )
     with pytest.raises(IngestError, match="looks like metres or flight levels"):

@@ -86,6 +86,22 @@ def test_unknown_phase_method(cleaned):
         assign_phases(resample(tracks), flights, PhaseConfig(method="magic"))
 
 
+@pytest.mark.parametrize("dt_s", [0, -5, 1e-9])
+def test_resample_refuses_a_step_that_is_not_positive(cleaned, dt_s):
+    with pytest.raises(ValueError, match="dt_s must be a positive step"):
+        resample(cleaned[0], dt_s)
+
+
+def test_exact_step_check_fails_with_a_reason_on_tracks_without_steps(cleaned):
+    from assets.aviation.checks import tracks_exact_step
+    from warehouse.storage import write_table
+
+    grid = resample(cleaned[0]).head(0)  # no step anywhere (e.g. every flight shorter than one step)
+    write_table("tracks_20s", grid.with_columns(temperature_k=pl.lit(0.0), wind_u_mps=pl.lit(0.0), wind_v_mps=pl.lit(0.0), phase=pl.lit("")))
+    result = tracks_exact_step()
+    assert not result.passed and "no step" in result.metadata["why"].text
+
+
 def test_resample_is_vectorised_over_flights(cleaned):
     """Doubling the flights (time-shifted copies) gives exactly the same points for the originals."""
     tracks, _ = cleaned

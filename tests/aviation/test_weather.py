@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import datetime as dt
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +20,7 @@ from models.aviation.weather import (
     isa_pressure_hpa,
     read_weather,
     sample_weather,
+    share_outside_levels,
     weather_time_range,
 )
 
@@ -228,6 +231,12 @@ def test_sample_clamps_levels_and_nans_outside_grid(era5):
     assert np.isnan(out["wind_u_mps"]).all()
 
 
+def test_share_outside_levels(era5, gfs):
+    alt = np.array([1_000.0, 9_500.0, 10_000.0, 12_000.0])  # 899, 294, 265, 194 hPa
+    assert share_outside_levels(era5, alt) == 0.5  # 200-300 hPa: the 1 km and 12 km points are clamped
+    assert share_outside_levels(gfs, alt) == 0.0
+
+
 def test_sample_longitude_wraps_on_global_grid(gfs):
     level, lat = 250.0, 50.0
     t = "2011-01-15T12:00"
@@ -374,9 +383,6 @@ def test_bad_sampling_requests(era5):
 def test_grib_reader_then_libsumo_in_one_process_exits_cleanly():
     """eccodes' bundled libraries loaded before libsumo used to crash the process at exit (double free),
     e.g. a test session or a Dagster run that reads GRIB weather and then simulates urban traffic."""
-    import subprocess
-    import sys
-
     repo = DATA.parents[1]
     code = (
         "from models.aviation.weather import read_weather\n"
@@ -388,3 +394,9 @@ def test_grib_reader_then_libsumo_in_one_process_exits_cleanly():
     )
     done = subprocess.run([sys.executable, "-c", code], cwd=repo, capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, f"exit {done.returncode}: {done.stderr[-500:]}"
+
+
+def test_reading_weather_prints_nothing_of_libsumo():
+    code = "from models.aviation.weather import read_weather; read_weather('data/weather/era5_2019-01-05_europe_200-300hPa.nc')"
+    run = subprocess.run([sys.executable, "-c", code], cwd=DATA.parents[1], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0 and run.stdout == ""

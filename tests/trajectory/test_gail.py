@@ -8,7 +8,7 @@ import torch
 
 from models.parallel import ProcessPool
 from models.trajectory.bc import train_bc, train_mode_classifier
-from models.trajectory.data import demonstrations
+from models.trajectory.data import TrajectoryDataError, demonstrations
 from models.trajectory.env import DAY0_S
 from models.trajectory.evaluate import evaluate_model, evaluate_model_file, growth_table, metrics_table
 from models.trajectory.metrics import matched_errors
@@ -31,6 +31,12 @@ def setup(aviation_tables):
 @pytest.fixture(scope="module")
 def trained(setup):
     return train_model(setup[0], "triple_gail", "SMIL", 0, Budget(bc_epochs=8, gail_iterations=2), "bce_gp")
+
+
+def test_prepare_refuses_a_step_other_than_the_tracks(aviation_tables):
+    tracks20, modes, flights, splits, weather = aviation_tables
+    with pytest.raises(TrajectoryDataError, match="tracks_20s has a 20 s step but dt_s is 10 s"):
+        prepare(tracks20, modes, flights, splits, weather, 10.0)
 
 
 def test_matched_errors_units_and_zero():
@@ -161,6 +167,20 @@ def test_prediction_cli_and_bad_inputs(setup, trained, tmp_path, capsys):
         read_first_states(tmp_path / "feet.parquet")
     assert main(["--model", str(tmp_path / "nope.pt"), "--flights", str(flights), "--out", str(tmp_path / "x.parquet")]) == 2
     assert "not found" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("change, message", [
+    (pl.col("alt_m") * float("nan"), "missing or NaN lon/lat/alt_m"),
+    (pl.lit(None, pl.Float64).alias("alt_m"), "missing or NaN lon/lat/alt_m"),
+    (pl.lit(None, pl.Float64).alias("lon"), "missing or NaN lon/lat/alt_m"),
+    (pl.lit(-5000.0).alias("alt_m"), "below -500 m"),
+    (None, "no rows"),
+])
+def test_prediction_input_values_are_checked(tmp_path, change, message):
+    first = pl.DataFrame({"flight_id": ["f1"], "ts": ["2022-02-27T04:12:20Z"], "lon": [37.5], "lat": [56.0], "alt_m": [1120.0], "route": ["UUEE-UMKK"]})
+    (first.head(0) if change is None else first.with_columns(change)).write_csv(tmp_path / "f.csv")
+    with pytest.raises(PredictionInputError, match=message):
+        read_first_states(tmp_path / "f.csv")
 
 
 def test_mode_selection_keeps_to_the_flights_side_of_the_airspace_closure(setup):

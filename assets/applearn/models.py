@@ -25,6 +25,8 @@ class AppLearnConfig(dg.Config):
     partitions: list[str] | None = Field(default=None, description="Table 6.1 partitions [P1-P4]")
     min_flights: int | None = Field(default=None, description="datasets = whole-flight clusters with at least this many flights [demo 25, paper 20]")
     episodes: int | None = Field(default=None, description="DQN training episodes [demo 768, paper 15000]")
+    reward_scales: list[float] | None = Field(
+        default=None, description="DQN reward scales, one training each, the best on validation flights kept [demo 0.01, paper 1, 0.1, 0.01]")
     workers: int | None = Field(default=None, description="runs in parallel, one process (one core) each [None: the usable cores]")
 
 
@@ -47,7 +49,8 @@ def applearn_experiments(context: dg.AssetExecutionContext, config: AppLearnConf
 
     protocol = resolve(config, PROTOCOL)
     torch.set_num_threads(1)  # small nets: more threads only add overhead
-    params = demo_or_paper(config.profile, episodes=config.episodes)
+    params = demo_or_paper(config.profile, episodes=config.episodes,
+                           reward_scales=None if config.reward_scales is None else tuple(config.reward_scales))
     sets = datasets(tracks_20s, trajectory_modes, protocol["min_flights"])
     todo = [(d, p, s) for d in sets for p in protocol["partitions"] for s in protocol["seeds"]]
     context.log.info(f"{len(todo)} runs: datasets {list(sets)}, {protocol}, {params.episodes} episodes each")

@@ -20,6 +20,8 @@ class EvaluationConfig(dg.Config):
     profile: str = Field(default=default_profile(), description="kept for symmetry: the copies evaluated come from urban_scenarios")
     methods: list[str] = Field(default=METHODS, description="methods to evaluate (RL methods need their urban_training policies)")
     workers: int | None = Field(default=None, description="episodes run in parallel, one libsumo process each (None: usable cores)")
+    scenarios: list[str] | None = Field(default=None, description="evaluate only these scenarios' held-out copies (None: every scenario)")
+    copies: int | None = Field(default=None, description="at most this many held-out copies per scenario, the lowest-numbered (None: all)")
 
 
 def _run(context, jobs, workers):
@@ -34,9 +36,10 @@ def _run(context, jobs, workers):
 
 @dg.asset(group_name="urban", description="Metrics of every method on every copy not used in training (greedy policies, ε = 0).")
 def urban_results(context: dg.AssetExecutionContext, config: EvaluationConfig, urban_scenarios: pl.DataFrame, urban_training: pl.DataFrame) -> dg.Output:
-    from models.urban.experiments import evaluation_jobs, results_rows
+    from models.urban.experiments import evaluation_jobs, held_out, results_rows
 
-    jobs = evaluation_jobs(urban_scenarios, load_policies(urban_training), config.methods)
+    copies = held_out(urban_scenarios, config.scenarios, config.copies)
+    jobs = evaluation_jobs(copies, load_policies(urban_training), config.methods)
     df = results_rows(*_run(context, jobs, config.workers or usable_cores()))
     summary = df.group_by("scenario", "method", maintain_order=True).agg(
         pl.len().alias("runs"), pl.col("avg_travel_time_s").mean(), pl.col("avg_speed_mps").mean(),
@@ -55,11 +58,15 @@ def urban_thesis_tables(urban_results: pl.DataFrame, urban_scenarios: pl.DataFra
 @dg.asset(group_name="urban", description="1 s trajectories of one evaluation copy per trained scenario and method; Fig 4.4 profiles; rerun replay.")
 def urban_trajectories(context: dg.AssetExecutionContext, config: EvaluationConfig, urban_scenarios: pl.DataFrame,
                        urban_training: pl.DataFrame, urban_routes: pl.DataFrame) -> dg.Output:
-    from models.urban.experiments import evaluation_jobs, trajectories_rows
+    from models.urban.experiments import evaluation_jobs, held_out, trajectories_rows
+    from models.urban.network import UrbanInputError
     from models.urban.plots import busiest_route, junction_offsets_m, route_profile_png
     from models.urban.recording import write_episode_recording
 
-    jobs = evaluation_jobs(urban_scenarios, load_policies(urban_training), config.methods, record_copy=0)
+    copies = held_out(urban_scenarios, config.scenarios, config.copies)
+    jobs = evaluation_jobs(copies, load_policies(urban_training), config.methods, record_copy=0)
+    if not jobs:  # one copy of each selected scenario evaluated with its own policies (no reuse copy): nothing to concatenate
+        raise UrbanInputError(f"urban_trajectories: none of the scenarios {config.scenarios} is evaluated with its own policies")
     df = trajectories_rows(*_run(context, jobs, config.workers or usable_cores()))
     metadata = {}
     for (scenario,), g in df.group_by("scenario", maintain_order=True):

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
-from models.urban.network import artificial_network, enumerate_routes, junction_census, osm_network, sumo_network
+from models.urban.network import UrbanInputError, artificial_network, enumerate_routes, junction_census, osm_network, sumo_network
 from models.urban.scenarios import Demand, write_copy
 from models.urban.sim import ScenarioFiles
 
@@ -257,6 +257,22 @@ def run_job(job):
         return metrics, frames, set()
     result = run_episode(job)
     return result.metrics, result.frames, result.collided
+
+
+def held_out(scenarios_df: pl.DataFrame, scenarios: list[str] | None = None, copies: int | None = None) -> pl.DataFrame:
+    """The copies to evaluate: every non-training copy, or only those of `scenarios`, and at most the first `copies` of
+    each (the paper profile has 220 held-out copies, up to 50,000 vehicles each: hours even for one seed)."""
+    rows = scenarios_df.filter(pl.col("role") != "train")
+    if scenarios is not None:
+        known = rows["scenario"].unique(maintain_order=True).to_list()
+        if unknown := sorted(set(scenarios) - set(known)):
+            raise UrbanInputError(f"evaluation scenarios {unknown} have no held-out copies; expected some of {', '.join(known)}")
+        rows = rows.filter(pl.col("scenario").is_in(scenarios))
+    if copies is not None:
+        if copies < 1:
+            raise UrbanInputError(f"evaluation copies must be >= 1, got {copies}")
+        rows = rows.filter(pl.col("copy").rank("ordinal").over("scenario") <= copies)
+    return rows
 
 
 def evaluation_jobs(scenarios_df: pl.DataFrame, policies: dict, methods: list[str], record_copy: int | None = None):

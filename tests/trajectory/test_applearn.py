@@ -220,6 +220,8 @@ def test_training_starts_mix_the_four_kinds_in_the_shipped_shares(cluster, train
     assert not (ka == 3).any() and np.isfinite(a.lon).all()
     with pytest.raises(ValueError, match="together <= 1"):
         replace(params, route_start_fraction=0.5)
+    with pytest.raises(ValueError, match="at least one, each > 0"):  # the asset's reward_scales config field
+        demo_or_paper("paper", reward_scales=())
 
 
 def test_same_seed_same_numbers_and_reward_scale_chosen_without_test_flights(cluster, tmp_path):

@@ -1,7 +1,11 @@
-"""Demand: 75/15/10 mix, constant or noisy arrivals, LS streams, seeded copies."""
+"""Demand: 75/15/10 mix, constant or noisy arrivals, LS streams, seeded copies; the held-out copies evaluated."""
 
 import numpy as np
+import polars as pl
+import pytest
 
+from models.urban.experiments import held_out, scenarios
+from models.urban.network import UrbanInputError
 from models.urban.scenarios import Demand, vehicles
 
 
@@ -30,3 +34,16 @@ def test_same_seed_same_copy_other_seed_other_copy():
     a, b, c = (vehicles(Demand(50, 200.0, noise_sigma_s=0.5), 12, s) for s in (7, 7, 8))
     assert all(np.array_equal(a[k], b[k]) for k in a)
     assert not np.array_equal(a["route"], c["route"])
+
+
+def test_held_out_copies_of_the_paper_profile_and_a_subset():
+    df = pl.DataFrame([{"scenario": s.name, "copy": c, "role": "train" if c < s.train_copies else s.role}
+                       for s in scenarios("paper") for c in range(s.train_copies + s.eval_copies)])
+    every = held_out(df)
+    assert every.height == 220 and (every["role"] != "train").all()  # 22 scenarios x 10 held-out copies
+    sub = held_out(df, ["sc1", "sc4_x5"], copies=2)
+    assert sorted(sub.select("scenario", "copy").rows()) == [("sc1", 5), ("sc1", 6), ("sc4_x5", 0), ("sc4_x5", 1)]
+    with pytest.raises(UrbanInputError, match="sc9"):
+        held_out(df, ["sc9"])
+    with pytest.raises(UrbanInputError, match=">= 1"):
+        held_out(df, copies=0)

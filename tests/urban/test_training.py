@@ -14,7 +14,7 @@ def _train(files, agents, variant, seed, episodes=3, gradient_steps=None, shield
         return train([(files, 15)], agents, variant, episodes, seed, pool, log=lambda _: None, gradient_steps=gradient_steps, shield=shield)
 
 
-def test_same_seed_same_policy_and_log(tmp_path, sc1_net):
+def test_same_seed_same_policy_and_log(tmp_path, sc1_net, monkeypatch):
     files, routes = make_copy(tmp_path / "c", sc1_net, 15, 60.0)
     agents = [f"{r['route_id']}:{c}" for r in routes for c in ("car", "heavy")]
     (pa, ra), (pb, rb) = (_train(files, agents, "col", 0, gradient_steps=10) for _ in range(2))  # 10 steps: faster, same code path
@@ -24,6 +24,13 @@ def test_same_seed_same_policy_and_log(tmp_path, sc1_net):
     assert not np.array_equal(pa["w1"], pc["w1"])
     assert {r["episode"] for r in ra} == {0, 1, 2} and len(ra) == 3 * len(agents)
     assert ra[0]["epsilon"] == 0.9 and ra[-1]["epsilon"] < 0.9
+    # a long run logs every k-th episode and the last (k = episodes // LOG_EPISODES): the same rows, the same policy
+    monkeypatch.setattr(col_marl, "LOG_EPISODES", 1)
+    pt, rt = _train(files, agents, "col", 0, gradient_steps=10)
+    assert all(np.array_equal(pa[k], pt[k]) for k in pa)
+    kept = [r for r in ra if r["episode"] in (0, 2)]
+    assert [(r["agent"], r["episode"]) for r in rt] == [(r["agent"], r["episode"]) for r in kept]
+    np.testing.assert_array_equal([(r["return"], r["loss"]) for r in rt], [(r["return"], r["loss"]) for r in kept])
 
 
 def test_training_under_the_safety_layer_acts_and_bootstraps_within_the_masks(tmp_path, sc1_net, monkeypatch):

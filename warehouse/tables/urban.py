@@ -52,7 +52,7 @@ TABLES: list[Table] = [
     ),
     Table(
         "urban_training",
-        "Training log of the route agents: one row per method, route agent and episode, with the model file.",
+        "Training log of the route agents: one row per method, route agent and logged episode (every episode of a run under 400 episodes; a longer one every k-th, k = episodes // 200, and the last: LOG_EPISODES in models/urban/col_marl.py), with the model file.",
         (
             _SCENARIO,
             _METHOD,

@@ -1,8 +1,10 @@
 """Reference solutions: the exact integer program (HiGHS) and first-come-first-served ground delays.
 
-Integer program (minimum total delay under the capacity constraints):
+Integer program (minimum total delay under the capacity constraints; among the schedules with that delay, the
+fewest regulated flights, d >= REGULATED_MIN, so that the reference does not depend on which of several equally
+short schedules a solver version finds):
 
-    min  Σ_f Σ_d d · x_fd
+    min  Σ_f Σ_d ((F + 1) · d + [d >= REGULATED_MIN]) · x_fd          F flights: the second term sums to at most F
     s.t. Σ_d x_fd = 1                                   every flight gets one delay d ∈ {0..MaxDelay}
          Σ_{(f,d): an entry of f delayed by d falls in sector-hour k} x_fd <= capacity_k     every k
          x_fd ∈ {0, 1}
@@ -17,7 +19,7 @@ import highspy
 import numpy as np
 from scipy import sparse
 
-from models.dcb.problem import DCBProblem
+from models.dcb.problem import REGULATED_MIN, DCBProblem
 
 
 class InfeasibleError(ValueError):
@@ -46,9 +48,10 @@ def solve_optimum(problem: DCBProblem, time_limit_s: float = 300.0) -> tuple[np.
     h.setOptionValue("output_flag", False)
     h.setOptionValue("time_limit", float(time_limit_s))
     h.setOptionValue("random_seed", 0)
+    h.setOptionValue("mip_rel_gap", 0.0)  # the objective is an integer: stop only at a proven optimum
     lp = highspy.HighsLp()
     lp.num_col_, lp.num_row_ = a.shape[1], a.shape[0]
-    lp.col_cost_ = np.tile(delays, flights.size).astype(float)
+    lp.col_cost_ = np.tile((flights.size + 1) * delays + (delays >= REGULATED_MIN), flights.size).astype(float)
     lp.col_lower_, lp.col_upper_ = np.zeros(a.shape[1]), np.ones(a.shape[1])
     lp.row_lower_ = np.concatenate([np.ones(flights.size), np.full(rows.size, -highspy.kHighsInf)])
     lp.row_upper_ = np.concatenate([np.ones(flights.size), problem.capacity[rows].astype(float)])

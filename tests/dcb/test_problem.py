@@ -8,7 +8,7 @@ import polars as pl
 import pytest
 
 from models.dcb.optimum import fcfs, solve_optimum
-from models.dcb.problem import DCBProblem, hotspot_table
+from models.dcb.problem import REGULATED_MIN, DCBProblem, hotspot_table
 
 T0 = datetime(2018, 8, 1, tzinfo=timezone.utc)
 
@@ -49,12 +49,13 @@ def test_hotspots_of_a_hand_built_case():
     assert p.evaluate(d, all_entries=True).hotspots == 0
 
 
-def brute_force(p: DCBProblem) -> int:
+def brute_force(p: DCBProblem) -> tuple[int, int]:
+    """(least total delay, fewest regulated flights among the schedules with that delay)."""
     best = None
     for combo in itertools.product(range(p.max_delay_min + 1), repeat=p.n_flights):
         d = np.array(combo)
-        if p.evaluate(d, all_entries=True).hotspots == 0 and (best is None or d.sum() < best):
-            best = int(d.sum())
+        if p.evaluate(d, all_entries=True).hotspots == 0 and (best is None or (d.sum(), (d >= REGULATED_MIN).sum()) < best):
+            best = (int(d.sum()), int((d >= REGULATED_MIN).sum()))
     return best
 
 
@@ -66,9 +67,19 @@ def test_integer_program_matches_brute_force(capacity):
     p = make_problem(rows, capacity, max_delay_min=6)
     delay, _ = solve_optimum(p)
     assert p.evaluate(delay, all_entries=True).hotspots == 0
-    assert int(delay.sum()) == brute_force(p) > 0
+    assert (int(delay.sum()), int((delay >= REGULATED_MIN).sum())) == brute_force(p) and delay.sum() > 0
     first_come = fcfs(p)  # FCFS resolves every hotspot too, never with less delay than the optimum
     assert p.evaluate(first_come, all_entries=True).hotspots == 0 and first_come.sum() >= delay.sum()
+
+
+def test_among_equally_short_schedules_the_optimum_regulates_fewest():
+    # 4 min in all either way: f1 +4 (one regulated flight) or f2 +2 out of A's full hour, which pushes its B entry
+    # into f3's hour, and f3 +2 on (no regulated flight)
+    rows = [("f1", "A", 56, 5), ("f2", "A", 58, 5), ("f2", "B", 119, 5), ("f3", "B", 178, 5)]
+    p = make_problem(rows, {"A": 1, "B": 1}, max_delay_min=6)
+    delay, _ = solve_optimum(p)
+    assert brute_force(p) == (4, 0)
+    assert delay.tolist() == [0, 2, 2]
 
 
 def test_optimum_reports_infeasible_within_max_delay():

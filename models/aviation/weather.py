@@ -184,14 +184,11 @@ def _detect_format(path: Path) -> str:
 def _libsumo_before_eccodes() -> None:
     """eccodes' wheels (loaded by cfgrib, also through xarray's backend discovery) put their bundled C
     libraries (proj, sqlite, krb5, ...) in the global symbol namespace; a libsumo imported after them binds
-    to those copies and the process dies at exit with a double free. Imported first, each keeps its own.
-    Its import prints a pyarrow-version notice meant for SUMO users, not for someone reading weather: hidden."""
-    import contextlib
-    import io
+    to those copies and the process dies at exit with a double free. Imported first, each keeps its own."""
+    from models.libsumo_import import import_libsumo
 
     try:
-        with contextlib.redirect_stdout(io.StringIO()):
-            import libsumo  # noqa: F401
+        import_libsumo()
     except ImportError:  # no urban system installed: nothing to protect
         pass
 

@@ -172,7 +172,9 @@ class Simulation:
         self.max_time_s = files.last_depart_s + SLACK_S
 
     def start(self) -> None:
-        import libsumo as ls
+        from models.libsumo_import import import_libsumo
+
+        ls = import_libsumo()
 
         args = ["sumo", "-n", self.files.net, "-a", self.files.vtypes(self.model), "-r", self.files.routes,
                 "--step-length", str(self.step_s), "--seed", str(self.seed), "--begin", "0",

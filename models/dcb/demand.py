@@ -107,6 +107,8 @@ def read_so6(path: str | Path) -> tuple[pl.DataFrame, pl.DataFrame]:
 
 def so6_demand(path: str | Path, step_s: float = 30.0) -> tuple[pl.DataFrame, pl.DataFrame, pl.DataFrame]:
     """SO6 file -> (points, flights, rejects). Each segment becomes points every `step_s` (both ends kept)."""
+    if not step_s > 0:
+        raise DemandError(f"so6_step_s {step_s}: expected a positive step in seconds")
     segments, rejects = read_so6(path)
     if segments.height == 0:
         raise DemandError(f"{Path(path)}: no usable SO6 line ({rejects.height} rejected, see the quarantine)")

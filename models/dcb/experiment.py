@@ -9,7 +9,7 @@ import polars as pl
 from models.aviation.ingest import summarise
 from models.dcb.airspace import GeoJSONSectorisation, GridSectorisation, SectorFileError, sector_entries
 from models.dcb.cmarl import peer_edges
-from models.dcb.demand import adsb_demand, so6_demand
+from models.dcb.demand import DemandError, adsb_demand, so6_demand
 from models.markdown import markdown_table
 from models.dcb.problem import DELAY_COST_EUR_PER_MIN, REGULATED_MIN, DCBProblem, aircraft_class, base_capacities, hotspot_table, scaled_capacities
 
@@ -21,6 +21,8 @@ def load_demand(path: str | Path, min_points: int = 6, so6_step_s: float = 30.0)
 
     rejects: source, row_number, reason, detail; summary: source, outcome, reason, rows (read = kept + rejected)."""
     p = Path(path)
+    if ".so6" in [s.lower() for s in p.suffixes[:-1]]:  # the ADS-B reader would call it an unsupported table type
+        raise DemandError(f"{p}: SO6 files are read uncompressed, as .so6")
     if p.suffix.lower() == ".so6":
         points, flights, rej = so6_demand(p, so6_step_s)
         rejects = rej.select("source", row_number=pl.col("line_number").cast(pl.Int64), reason="reason", detail="line")
@@ -40,6 +42,8 @@ def sectorisation(geojson_path: str | None, cell_lat_deg: float, cell_lon_deg: f
     """A user GeoJSON if given, else the grid (box = [lat_min, lat_max, lon_min, lon_max], None = the Swiss box)."""
     if geojson_path:
         return GeoJSONSectorisation(geojson_path)
+    if box is not None and len(box) != 4:
+        raise SectorFileError(f"grid sectorisation: box {box} must be [lat_min, lat_max, lon_min, lon_max]")
     extent = dict(zip(("lat_min", "lat_max", "lon_min", "lon_max"), box)) if box else {}
     return GridSectorisation(cell_lat_deg=cell_lat_deg, cell_lon_deg=cell_lon_deg, fl_edges=tuple(fl_edges), **extent)
 

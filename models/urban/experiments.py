@@ -281,6 +281,9 @@ def evaluation_jobs(scenarios_df: pl.DataFrame, policies: dict, methods: list[st
     safety layer on. With record_copy set, only that copy, recorded (for trajectories)."""
     from models.urban.col_marl import EpisodeJob
 
+    known = [*METHODS_RL, *METHODS_SHIELDED, *METHODS_SUMO]
+    if unknown := sorted(set(methods) - set(known)):
+        raise UrbanInputError(f"evaluation methods {unknown}: expected some of {', '.join(known)}")
     out = []
     rows = scenarios_df.filter(pl.col("role") != "train")
     if record_copy is not None:

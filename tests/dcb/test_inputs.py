@@ -8,7 +8,7 @@ import pytest
 
 from models.dcb.airspace import GeoJSONSectorisation, SectorFileError, sector_entries
 from models.dcb.demand import DemandError, read_so6
-from models.dcb.experiment import airspace_tables, load_demand
+from models.dcb.experiment import airspace_tables, load_demand, sectorisation
 
 GOOD = [
     "LSGG_LSZH LSGG LSZH A320 100000 101500 300 360 0 SWR100 180801 180801 2784.0 372.0 2784.0 480.0 F1 1 50.0 0",
@@ -68,6 +68,12 @@ def test_so6_without_a_usable_line_is_one_clear_error(tmp_path):
             load_demand(path)
     with pytest.raises(DemandError, match="no such SO6 file"):
         load_demand(tmp_path / "missing.so6")
+    with pytest.raises(DemandError, match="SO6 files are read uncompressed, as .so6"):
+        load_demand(tmp_path / "day.so6.gz")
+    path.write_text("\n".join(GOOD) + "\n")
+    for step in (0, -30):
+        with pytest.raises(DemandError, match=f"so6_step_s {step}: expected a positive step"):
+            load_demand(path, so6_step_s=step)
 
 
 @pytest.mark.parametrize("mutate, message", [
@@ -103,6 +109,8 @@ def test_grid_sectorisation_locates_points_and_rejects_bad_grids():
     assert [names[i] if i >= 0 else None for i in idx] == ["R0C0_FL285-355", "R1C3_FL375-480", "R1C1_FL355-375", None, "R0C0_FL375-480"]
     with pytest.raises(SectorFileError, match="fl_edges"):
         GridSectorisation(fl_edges=(300.0, 300.0))
+    with pytest.raises(SectorFileError, match=r"box \[45.8, 47.8, 5.9\] must be \[lat_min, lat_max, lon_min, lon_max\]"):
+        sectorisation(None, 1.0, 1.0, [285.0, 480.0], [45.8, 47.8, 5.9])
 
 
 def test_sector_file_no_flight_enters_is_one_clear_error(tmp_path):

@@ -4,7 +4,7 @@ import numpy as np
 import polars as pl
 import pytest
 
-from models.urban.experiments import held_out, scenarios
+from models.urban.experiments import evaluation_jobs, held_out, scenarios
 from models.urban.network import UrbanInputError
 from models.urban.scenarios import Demand, vehicles
 
@@ -47,3 +47,5 @@ def test_held_out_copies_of_the_paper_profile_and_a_subset():
         held_out(df, ["sc9"])
     with pytest.raises(UrbanInputError, match=">= 1"):
         held_out(df, copies=0)
+    with pytest.raises(UrbanInputError, match=r"evaluation methods \['dqn'\]: expected some of col_marl"):
+        evaluation_jobs(sub, {}, ["idm", "dqn"])

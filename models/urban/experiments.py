@@ -155,7 +155,7 @@ def scenarios_table(specs: list[ScenarioSpec], routes: pl.DataFrame, out_dir: Pa
             })
     return pl.DataFrame(rows).select(
         "scenario", "copy", "network", "role", "policy_scenario", "arrival", "noise_sigma_s", "duration_s", "demand_seed",
-        "n_vehicles", "n_cars", "n_buss", "n_trucks", "last_depart_s", "max_speed_mps", "net_path", "routes_path", "folder",
+        "n_vehicles", "n_cars", "n_buses", "n_trucks", "last_depart_s", "max_speed_mps", "net_path", "routes_path", "folder",
     )
 
 

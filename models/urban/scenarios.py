@@ -127,5 +127,5 @@ def write_copy(folder: Path, net_path: Path, routes: list[dict], demand: Demand,
         "folder": str(folder),
         "n_vehicles": int(len(veh["depart_s"])),
         "last_depart_s": float(veh["depart_s"].max()),
-        **{f"n_{k}s": v for k, v in counts.items()},
+        **{f"n_{k}es" if k.endswith("s") else f"n_{k}s": v for k, v in counts.items()},  # n_cars, n_buses, n_trucks
     }

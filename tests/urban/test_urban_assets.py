@@ -23,7 +23,7 @@ def test_scenario_assets_and_baselines(isolated_home):
     assert all(Path(p).exists() for p in scen["routes_path"])
     row = scen.filter(pl.col("scenario") == "sc1_x3").row(0, named=True)
     assert row["n_vehicles"] == 120 and row["policy_scenario"] == "sc1" and row["role"] == "reuse"
-    assert (scen["n_cars"] + scen["n_buss"] + scen["n_trucks"] == scen["n_vehicles"]).all()
+    assert (scen["n_cars"] + scen["n_buses"] + scen["n_trucks"] == scen["n_vehicles"]).all()
 
     sc1_eval = scen.filter((pl.col("scenario") == "sc1") & (pl.col("role") == "eval"))
     jobs = evaluation_jobs(sc1_eval, {}, ["idm", "krauss"])

@@ -41,7 +41,7 @@ TABLES: list[Table] = [
             col("demand_seed", pa.int64(), "", "seed of the copy's departures, vehicle types and routes"),
             col("n_vehicles", pa.int64(), "", "vehicles"),
             col("n_cars", pa.int64(), "", "passenger cars"),
-            col("n_buss", pa.int64(), "", "buses"),
+            col("n_buses", pa.int64(), "", "buses"),
             col("n_trucks", pa.int64(), "", "trucks"),
             col("last_depart_s", pa.float64(), "s", "departure of the last vehicle"),
             col("max_speed_mps", pa.float64(), "m/s", "vel_max"),

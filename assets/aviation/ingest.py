@@ -6,7 +6,7 @@ import dagster as dg
 from pydantic import Field
 
 from models.aviation.airports import flights_table
-from models.aviation.ingest import IngestConfig, ingest
+from models.aviation.ingest import IngestConfig, IngestError, ingest
 
 REPO = Path(__file__).resolve().parents[2]
 DEFAULT_TRACKS = REPO / "data" / "opensky" / "kaliningrad_2022-02-22_2022-03-05.parquet"
@@ -44,6 +44,10 @@ def flight_ingest(context: dg.AssetExecutionContext, config: FlightIngestConfig)
     tracks, rejects, summary = ingest(config.source_path, cfg)
     flights = flights_table(tracks)
     counts = {f"{r['outcome']} {r['reason']}".strip(): r["rows"] for r in summary.iter_rows(named=True)}
+    if flights.height == 0:  # empty tables would replace the warehouse's and every check downstream would fail
+        raise IngestError(f"{config.source_path}: no flight kept of {counts['read']:,} rows ("
+                          + ", ".join(f"{k.removeprefix('rejected ')}={v:,}" for k, v in counts.items() if k.startswith("rejected"))
+                          + "); check the thresholds (gap_split_s, min_points, max_alt_m, max_speed_mps)")
     context.log.info(f"ingested {config.source_path}: " + ", ".join(f"{k}={v:,}" for k, v in counts.items()))
     context.log.info(f"{flights.height} flights on routes {flights['route'].value_counts().rows()}")
     routes = {r: n for r, n in flights["route"].value_counts().rows()}

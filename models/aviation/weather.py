@@ -567,7 +567,7 @@ def align_times(point_us: np.ndarray, weather_us: np.ndarray, alignment: str) ->
                 f"{int(outside.sum())} of {point_us.size} points lie outside the weather time range: "
                 f"points {_fmt_us(pts.min())} .. {_fmt_us(pts.max())} UTC, "
                 f"weather {_fmt_us(start)} .. {_fmt_us(end)} UTC; "
-                "if the weather is deliberately from another date, pass alignment='time_of_day'"
+                "if the weather is deliberately from another date, set weather_alignment (tracks_20s) to 'time_of_day'"
             )
         return point_us.copy()
     first_day = start - start % _US_PER_DAY  # midnight UTC of the weather's first day

@@ -20,7 +20,7 @@ import numpy as np
 import polars as pl
 import torch
 
-from models.trajectory.data import time_normalised
+from models.trajectory.data import TrajectoryDataError, time_normalised
 from models.trajectory.env import WeatherCube
 from models.trajectory.metrics import haversine_km, matched_errors
 
@@ -30,10 +30,6 @@ STATUS_NAMES = {RUNNING: "running", SUCCESS: "success", OUT_OF_BOX: "out_of_box"
 OBS_COLUMNS = ("lon_deg", "lat_deg", "alt_m", "elapsed_s", "temperature_k", "wind_u_mps", "wind_v_mps")
 WEATHER_COLUMNS = ("temperature_k", "wind_u_mps", "wind_v_mps")
 WEATHER_MARGIN_DEG = 5.0  # weather grid kept around the bounding box (one or two grid cells of GFS/ERA5)
-
-
-class TrajectoryDataError(ValueError):
-    """Expert tracks cannot be used to build the environment; the message is one line."""
 
 
 @dataclass(frozen=True)

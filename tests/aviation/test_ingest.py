@@ -196,3 +196,21 @@ def test_every_row_rejected_gives_empty_tracks(tmp_path, small_raw):
     tracks, rejects, _ = ingest(_write(no_address, tmp_path / "anonymous.parquet"))
     assert tracks.height == 0 and rejects.height == no_address.height
     assert set(rejects["reason"]) == {"missing_value"}
+
+
+def test_ingest_asset_refuses_to_keep_no_flight(tmp_path, small_raw):
+    """Every row rejected (here: every segment too short) must not replace the warehouse tables with empty ones."""
+    import dagster as dg
+
+    from assets.aviation.ingest import flight_ingest
+    from warehouse.io_manager import ParquetIOManager
+
+    path = _write(small_raw, tmp_path / "six.parquet")
+    result = dg.materialize(
+        [flight_ingest], resources={"io_manager": ParquetIOManager()}, raise_on_error=False,
+        run_config={"ops": {"flight_ingest": {"config": {"source_path": str(path), "min_points": 10**9}}}},
+    )
+    assert not result.success
+    (failure,) = [e for e in result.all_events if e.is_step_failure]
+    message = failure.step_failure_data.error.cause.message
+    assert "no flight kept of" in message and "short_segment=" in message

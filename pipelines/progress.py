@@ -57,7 +57,8 @@ class ProgressHandler(logging.Handler):
                 self._print(f"[{self.desc} {self.done}/{self.total}] {step} {outcome} in {took:.1f} s")
         elif kind is None and record.levelno == logging.INFO:
             self.bar.set_postfix_str(message.splitlines()[0][:80] if message else "")
-        if record.levelno >= logging.WARNING:
+        # a step skipped after a failure upstream is one "skipped" in the count, not an error line per step
+        if record.levelno >= logging.WARNING and not message.endswith("Not executing."):
             self._print(f"{record.levelname} {step}: {message}")
         elif kind == "ASSET_CHECK_EVALUATION" and not event.asset_check_evaluation_data.passed:
             # Dagster logs a failed check at DEBUG and its step still succeeds: say so, or the terminal shows only "done"

@@ -1,6 +1,8 @@
 """`python -m pipelines.materialize` (what `make demo` runs): one line per finished step off a terminal, the
 failing step named, a text log per run, every group known, and a one-line error for an unknown group."""
 
+import json
+
 import dagster as dg
 import pytest
 
@@ -75,3 +77,20 @@ def test_unknown_group_is_one_line(capsys):
         materialize.main(["aviation", "nonsense"])
     assert exc.value.code == 2
     assert "unknown group nonsense; the groups are aviation, trajectory, urban, dcb" in capsys.readouterr().err
+
+
+def test_config_json_configures_steps_and_a_failure_is_one_line(tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("TRAFFICLEARN_HOME", str(tmp_path))
+    monkeypatch.setenv("DAGSTER_HOME", str(tmp_path))
+    bad_path = {"ops": {"flight_ingest": {"config": {"source_path": str(tmp_path / "none.csv")}}}}
+    assert materialize.main(["aviation", "--config-json", json.dumps(bad_path)]) == 1
+    out, err = capsys.readouterr()
+    assert "none.csv: no such file" in err and "aviation: FAILED at flight_ingest" in out
+    assert "Not executing" not in err  # the steps skipped after the failure are not each an error line
+    bad_field = {"ops": {"flight_ingest": {"config": {"source_pth": "x.csv"}}}}
+    assert materialize.main(["aviation", "--config-json", json.dumps(bad_field)]) == 1
+    out = capsys.readouterr().out
+    assert out.startswith("aviation: invalid config: ") and "source_pth" in out and len(out.strip().splitlines()) == 1
+    with pytest.raises(SystemExit) as exc:
+        materialize.main(["aviation", "--config-json", '{"ops": {"dcb_cases": {}}}'])
+    assert exc.value.code == 2 and "names steps dcb_cases that the groups aviation do not run" in capsys.readouterr().err

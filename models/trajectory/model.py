@@ -75,10 +75,10 @@ class TrajectoryModel:
                                        f"(trained on {', '.join(sorted({k[0] for k in pm.mode_keys}))})")
         traj = np.concatenate([np.full(len(c), i) for i, c in enumerate(cands)])
         mode = torch.as_tensor(np.concatenate(cands))
-        start_t = torch.as_tensor(np.asarray(start, dtype=np.float64))[traj]
+        start_t = torch.as_tensor(np.array(start, dtype=np.float64))[traj]  # a copy: polars' arrays are read-only (torch warns)
         with torch.no_grad():
             ro = rollout(self.env, lambda o: pm.policy.act(o, mode)[0], start_t, pm.goals[mode],
-                         max_steps or pm.max_steps, torch.as_tensor(np.asarray(elapsed0_s, dtype=np.float64))[traj],
+                         max_steps or pm.max_steps, torch.as_tensor(np.array(elapsed0_s, dtype=np.float64))[traj],
                          torch.as_tensor(start_day(start_s))[traj])
             probs = self._mean_mode_probs(pm, ro, mode, routes, traj)
         own = probs[np.arange(len(traj)), mode.numpy()]

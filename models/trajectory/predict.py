@@ -88,7 +88,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m models.trajectory.predict", description=__doc__.split("\n\n")[0])
     ap.add_argument("--model", required=True, help="model file (.pt) from the trajectory_models catalogue")
     ap.add_argument("--flights", required=True, help="Parquet/CSV with flight_id, ts, lon, lat, alt_m, route")
-    ap.add_argument("--out", required=True, help="output Parquet")
+    ap.add_argument("--out", required=True, help="output Parquet (CSV if the name ends in .csv)")
     args = ap.parse_args(argv)
     try:
         model = TrajectoryModel.load(args.model)
@@ -97,7 +97,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    pred.write_parquet(args.out)
+    if args.out.lower().endswith(".csv"):
+        pred.write_csv(args.out)
+    else:
+        pred.write_parquet(args.out)
     print(f"{pred['flight_id'].n_unique()} flights, {pred.height} points -> {args.out}")
     return 0
 

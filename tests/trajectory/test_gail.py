@@ -159,6 +159,8 @@ def test_prediction_cli_and_bad_inputs(setup, trained, tmp_path, capsys):
     out = pl.read_parquet(tmp_path / "out.parquet")
     assert out["flight_id"].n_unique() == 3 and out["step"].min() == 0
     assert predict_flights(model, read_first_states(flights)).height == out.height
+    assert main(["--model", str(path), "--flights", str(flights), "--out", str(tmp_path / "out.csv")]) == 0
+    assert pl.read_csv(tmp_path / "out.csv").height == out.height  # the format the name says
     first.drop("route").write_parquet(tmp_path / "noroute.parquet")
     assert main(["--model", str(path), "--flights", str(tmp_path / "noroute.parquet"), "--out", str(tmp_path / "x.parquet")]) == 2
     assert "missing column(s) route" in capsys.readouterr().err

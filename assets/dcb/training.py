@@ -8,7 +8,8 @@ from assets.dcb.cases import problems
 from assets.profiles import default_profile, resolve
 from models.dcb.experiment import delay_rows
 from models.dcb.mirl import LEARNING_RATE
-from models.dcb.train import METHODS, train
+from models.dcb.train import METHODS, train_job
+from models.parallel import ProcessPool, usable_cores
 
 # per profile: episodes per abstraction level and seeds; the thesis trains 15,000 episodes per level, 10 seeds
 PROFILE = {"demo": {"episodes": 200, "seeds": [0, 1, 2]}, "paper": {"episodes": 15000, "seeds": list(range(10))}}
@@ -25,6 +26,8 @@ class TrainingConfig(dg.Config):
     learning_rate: float = Field(default=LEARNING_RATE, description="η of the Q updates (Eq 5.6, 5.7); the thesis's 0.01 is tuned for 15,000 episodes")
     readout: str = Field(default="repair", description="repair: the greedy rollout and the best training episode with hotspots left resolved FCFS "
                          "and unneeded delay trimmed; best_episode: the two as they are (the better one is returned)")
+    workers: int | None = Field(default=None, description="runs (case, method, seed) in parallel, one process each (None: usable cores); "
+                                "every run seeds itself, so the delays do not depend on it")
 
 
 def training_plan(config: TrainingConfig) -> dict:
@@ -40,17 +43,18 @@ def dcb_delays(context: dg.AssetExecutionContext, config: TrainingConfig, dcb_ca
                dcb_sectors: pl.DataFrame, dcb_flights: pl.DataFrame) -> dg.Output:
     plan = training_plan(config)
     episodes, seeds = plan["episodes"], plan["seeds"]
+    options = {"state": config.state, "reward": config.reward, "learning_rate": config.learning_rate, "readout": config.readout}
+    todo = [(case, problem, method, seed) for case, problem in problems(dcb_cases, dcb_sector_entries, dcb_sectors, dcb_flights).items()
+            for method in config.methods for seed in seeds]
     frames, runs = [], []
-    for case, problem in problems(dcb_cases, dcb_sector_entries, dcb_sectors, dcb_flights).items():
-        for method in config.methods:
-            for seed in seeds:
-                r = train(problem, method, seed, episodes, log=context.log.debug, state=config.state, reward=config.reward,
-                          learning_rate=config.learning_rate, readout=config.readout)
-                frames.append(delay_rows(case, method, seed, problem, r.delay_min, r.runtime_s, episodes=r.episodes))
-                runs.append({"case": case, "method": method, "seed": seed, "runtime_s": round(r.runtime_s, 1), "hotspots_left": r.hotspots_left,
-                             "total_delay_min": int(r.delay_min.sum()), "solution": r.source,
-                             "greedy_hotspots_left": r.greedy_hotspots, "greedy_total_delay_min": r.greedy_delay_min})
-                context.log.info(f"{runs[-1]}")
+    with ProcessPool(config.workers or usable_cores(), train_job) as pool:
+        jobs = [(problem, method, seed, episodes, options) for _, problem, method, seed in todo]
+        for k, ((case, problem, method, seed), r) in enumerate(zip(todo, pool.iter(jobs)), 1):
+            frames.append(delay_rows(case, method, seed, problem, r.delay_min, r.runtime_s, episodes=r.episodes))
+            runs.append({"case": case, "method": method, "seed": seed, "runtime_s": round(r.runtime_s, 1), "hotspots_left": r.hotspots_left,
+                         "total_delay_min": int(r.delay_min.sum()), "solution": r.source,
+                         "greedy_hotspots_left": r.greedy_hotspots, "greedy_total_delay_min": r.greedy_delay_min})
+            context.log.info(f"[{k}/{len(todo)}] {runs[-1]}")
     return dg.Output(pl.concat(frames), metadata={"episodes_per_level": episodes, "seeds": dg.MetadataValue.json(seeds),
                                                   "state": config.state, "reward": config.reward, "learning_rate": config.learning_rate,
                                                   "readout": config.readout,

@@ -194,3 +194,9 @@ def train(problem: DCBProblem, method: str, seed: int, episodes: int = EPISODES,
     source = min(score, key=score.get)
     delay, (hot, _) = candidates[source], score[source]
     return TrainResult(delay, int(hot), time.perf_counter() - started, episodes * len(levels), np.asarray(curve), source, *greedy)
+
+
+def train_job(job: tuple) -> TrainResult:
+    """`train` for a worker process (models.parallel.ProcessPool): (problem, method, seed, episodes, options)."""
+    problem, method, seed, episodes, options = job
+    return train(problem, method, seed, episodes, **options)

@@ -47,3 +47,8 @@ def test_dcb_assets_materialise_on_a_slice(tmp_path):
     md = result.asset_materializations_for_node("dcb_results")[0].metadata
     assert any(k.startswith("dcb_demand_capacity_cap90") for k in md) and "dcb_delay_histogram_cap90" in md
     assert "dcb_box_plots" in result.asset_materializations_for_node("dcb_summary")[0].metadata
+    # the runs in parallel processes give what one process gives (every run seeds itself)
+    parallel = read_table("dcb_delays")
+    again = dg.materialize(ASSETS, selection=["dcb_delays"], resources={"io_manager": ParquetIOManager()}, run_config={"ops": {
+        "dcb_delays": {"config": {"episodes": 5, "seeds": [0, 1], "methods": ["MIRL", "HCMARL"], "workers": 1}}}})
+    assert again.success and read_table("dcb_delays").drop("runtime_s").equals(parallel.drop("runtime_s"))

@@ -21,13 +21,20 @@ def main() -> int:
             print(f"error: {host}:{port} is already in use (another `make dev`?); "
                   f"set TRAFFICLEARN_UI_PORT to use another port", file=sys.stderr)
             return 1
-    cmd = [sys.executable, "-m", "dagster", "dev", "-m", "pipelines.definitions", "-h", host, "-p", port]
+    repo = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    cmd = [sys.executable, "-m", "dagster", "dev", "-m", "pipelines.definitions", "-d", repo, "-h", host, "-p", port]
+    # run from DAGSTER_HOME: from the checkout, dagster dev warns that the template dagster.yaml there "will not be used";
+    # the homes as absolute paths, so that a relative one still means what it meant here
+    homes = {k: os.path.abspath(os.environ[k]) for k in ("DAGSTER_HOME", "TRAFFICLEARN_HOME") if os.environ.get(k)}
+    cwd = homes.get("DAGSTER_HOME", repo)
 
     def restore_defaults() -> None:
         signal.signal(signal.SIGINT, signal.SIG_DFL)
         signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
-    child = subprocess.Popen(cmd, preexec_fn=restore_defaults)
+    # `dagster dev` still works; its notice that the `dg` CLI (not installed) supersedes it only confuses
+    env = {**os.environ, **homes, "PYTHONWARNINGS": "ignore:Function `dev_command` is superseded"}
+    child = subprocess.Popen(cmd, preexec_fn=restore_defaults, cwd=cwd, env=env)
     print(f"Dagster UI on http://{host}:{port} (Ctrl-C stops it)", flush=True)
 
     stopped = False

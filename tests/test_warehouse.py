@@ -95,6 +95,9 @@ def test_cli_tables_sql_formats(capsys):
     assert main(["sql", "DELETE FROM ingest_summary"]) == 1
     err = capsys.readouterr().err
     assert err.startswith("error:") and len(err.strip().splitlines()) == 1
+    for query, n in (("", 0), ("SELECT 1; SELECT 2", 2)):
+        assert main(["sql", query]) == 1
+        assert capsys.readouterr().err.strip() == f"error: expected one SQL statement, got {n} (several: python -m warehouse shell)"
     # an error DuckDB only raises while fetching rows, not while planning
     assert main(["sql", "SELECT CAST(outcome AS INTEGER) FROM ingest_summary"]) == 1
     err = capsys.readouterr().err

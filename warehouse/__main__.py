@@ -51,6 +51,10 @@ def cmd_tables(args) -> int:
 def cmd_sql(args) -> int:
     with connect() as con:
         try:
+            n = len(con.extract_statements(args.query))
+            if n != 1:  # DuckDB would run them all and show the last result only
+                print(f"error: expected one SQL statement, got {n} (several: python -m warehouse shell)", file=sys.stderr)
+                return 1
             rel = con.sql(args.query)
             # DuckDB runs a SELECT lazily: conversion and other run-time errors come at fetch time.
             text = None if rel is None else _render(rel, args.format)

@@ -6,11 +6,10 @@
   run, same seed, same delays (target >= 20x). Reported beside it, as before: the vectorised step with only the
   learner's action values + Q update looped ("learner loop in the vectorised step") and the learner part alone;
 * the exact optimum's solve time per case (HiGHS);
-* HCMARL at the thesis budget: 15,000 episodes per level on the full day (target < 5 min). Running
-  2 x 15,000 episodes here takes minutes, so the benchmark times TRAFFICLEARN_BENCH_DCB_EPISODES
-  episodes per level (default 300) and projects linearly; set it to 15000 to run the real thing. The
-  projection is pessimistic: a short run's policy clears fewer hotspots, so its episodes last longer
-  (docs/dcb.md gives a real 15,000-episode run beside it).
+* HCMARL at the thesis budget: a real run of 15,000 episodes per level on the full day (target < 5 min;
+  4-7 min here). TRAFFICLEARN_BENCH_DCB_EPISODES=300 times a short run instead and projects it linearly to
+  15,000, reported but not held to the target: the projection is pessimistic (a short run's policy clears fewer
+  hotspots, so its episodes last longer: 300 episodes projected to 310-333 s where the real run took 237 s).
 """
 
 import os
@@ -32,7 +31,7 @@ from models.dcb.train import EPISODES, GROUND, run_episode, train
 SWISS = b.REPO / "data" / "traffic_samples" / "switzerland_2018-08-01.parquet"
 TARGET_RATIO = 20.0
 TARGET_HCMARL_S = 300.0
-HCMARL_EPISODES = int(os.environ.get("TRAFFICLEARN_BENCH_DCB_EPISODES", "300"))
+HCMARL_EPISODES = int(os.environ.get("TRAFFICLEARN_BENCH_DCB_EPISODES", str(EPISODES)))
 _MASK = (1 << 64) - 1
 
 
@@ -151,11 +150,14 @@ def test_optimum_solve_time(swiss_tables, bench_results):
 
 
 def test_hcmarl_thesis_budget(cap95, bench_results):
-    b.warn_if_busy("DCB HCMARL")
+    load = b.warn_if_busy("DCB HCMARL")
     r = train(cap95, "HCMARL", seed=0, episodes=HCMARL_EPISODES)
-    projected = r.runtime_s * EPISODES / HCMARL_EPISODES
-    bench_results["dcb_hcmarl_full_day"] = {"episodes_per_level": HCMARL_EPISODES, "runtime_s": round(r.runtime_s, 1),
-                                            "projected_s_for_15000_per_level": round(projected, 1), "target_s": TARGET_HCMARL_S}
-    print(f"\nBENCH DCB HCMARL cap95: {HCMARL_EPISODES} episodes per level (x2 levels) in {r.runtime_s:.1f} s -> "
-          f"15,000 per level projected {projected:.0f} s (target < {TARGET_HCMARL_S:.0f} s): ratio {projected / TARGET_HCMARL_S:.1f}x the target")
-    assert projected < TARGET_HCMARL_S, f"HCMARL 15,000 episodes per level projected at {projected:.0f} s"
+    real = HCMARL_EPISODES == EPISODES
+    seconds = r.runtime_s * EPISODES / HCMARL_EPISODES
+    bench_results["dcb_hcmarl_full_day"] = {"episodes_per_level": HCMARL_EPISODES, "runtime_s": round(r.runtime_s, 1), "loadavg_before": round(load, 2),
+                                            ("real_s_for_15000_per_level" if real else "projected_s_for_15000_per_level"): round(seconds, 1),
+                                            "target_s": TARGET_HCMARL_S}
+    what = "in" if real else f"in {r.runtime_s:.1f} s -> 15,000 per level projected (pessimistic, not held to the target)"
+    print(f"\nBENCH DCB HCMARL cap95: {HCMARL_EPISODES} episodes per level (x2 levels) {what} {seconds:.0f} s (target < {TARGET_HCMARL_S:.0f} s)")
+    if real:
+        assert seconds < TARGET_HCMARL_S, f"HCMARL 15,000 episodes per level took {seconds:.0f} s"

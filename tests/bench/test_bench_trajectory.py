@@ -46,7 +46,7 @@ def _run(env, policy, n: int) -> int:
     return int(ro.live.sum())
 
 
-def test_batched_rollouts_vs_one_at_a_time():
+def test_batched_rollouts_vs_one_at_a_time(bench_results):
     torch.set_num_threads(THREADS)
     env, policy = _env_and_policy()
     _run(env, policy, 64)  # warm-up
@@ -57,12 +57,15 @@ def test_batched_rollouts_vs_one_at_a_time():
     batched_steps = _run(env, policy, BATCH)
     batched_rate = batched_steps / (time.perf_counter() - t0)
     ratio = batched_rate / single_rate
-    print(f"\none-at-a-time: {single_rate:,.0f} state-steps/s; batched ({BATCH}): {batched_rate:,.0f} state-steps/s; ratio {ratio:.0f}x")
+    bench_results["trajectory_rollouts"] = {"single_state_steps_per_s": round(single_rate), "batched_state_steps_per_s": round(batched_rate),
+                                            "ratio": round(ratio, 1), "batch": BATCH, "steps": STEPS, "target_ratio": TARGET_RATIO,
+                                            "target_state_steps_per_s": TARGET_STEPS_PER_S}
+    print(f"\nBENCH trajectory roll-outs: one-at-a-time {single_rate:,.0f} state-steps/s; batched ({BATCH}): {batched_rate:,.0f} state-steps/s; ratio {ratio:.0f}x")
     assert ratio >= TARGET_RATIO
     assert batched_rate >= TARGET_STEPS_PER_S
 
 
-def test_gail_iteration_time():
+def test_gail_iteration_time(bench_results):
     """One Triple-GAIL-GP iteration (256 roll-outs x 45 steps, D/selector updates, PPO) on synthetic expert pairs."""
     from models.trajectory import triple_gail
     from models.trajectory.nets import Selector
@@ -84,5 +87,6 @@ def test_gail_iteration_time():
     t0 = time.perf_counter()
     triple_gail.train(policy, Selector(4, task.obs_scaler), task, 1, "bce_gp", g)
     elapsed = time.perf_counter() - t0
-    print(f"\none Triple-GAIL-GP iteration ({triple_gail.N_TRAJECTORIES} roll-outs x {triple_gail.HORIZON} steps): {elapsed:.2f} s")
+    bench_results["triple_gail_iteration"] = {"seconds": round(elapsed, 2), "trajectories": triple_gail.N_TRAJECTORIES, "horizon": triple_gail.HORIZON}
+    print(f"\nBENCH one Triple-GAIL-GP iteration ({triple_gail.N_TRAJECTORIES} roll-outs x {triple_gail.HORIZON} steps): {elapsed:.2f} s")
     assert elapsed < 60

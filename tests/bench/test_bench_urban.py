@@ -12,12 +12,14 @@ Best of 3 runs each (the machine is shared: see the load average printed).
 
 import time
 
-import libsumo
 import torch
 
 import benchlib as b
+from models.libsumo_import import import_libsumo
 from models.urban.col_marl import EpisodeJob, RouteAgentsQ, numpy_params, run_episode
 from models.urban.experiments import REAL_NET
+
+libsumo = import_libsumo()
 from models.urban.network import artificial_network, enumerate_routes, sumo_network
 from models.urban.scenarios import Demand, write_copy
 from models.urban.sim import STEP_S, ScenarioFiles

@@ -29,17 +29,26 @@ def run(job: dg.JobDefinition, group: str, instance: dg.DagsterInstance, ops: di
     log_file = home() / "logs" / f"{time.strftime('%Y%m%dT%H%M%S')}_{group}.log"
     config = {"total_steps": len(job.graph.node_dict), "desc": group, "log_file": str(log_file)}
     t0 = time.perf_counter()
-    try:
-        result = job.execute_in_process(
-            instance=instance, run_config={"loggers": {"progress": {"config": config}}, "ops": ops or {}}, raise_on_error=False
-        )
-    except dg.DagsterInvalidConfigError as e:  # a wrong field or type: Dagster's message lists every error over many lines
-        return False, f"{group}: invalid config: " + "; ".join(err.message.replace("\n", " ") for err in e.errors)
+    result = job.execute_in_process(
+        instance=instance, run_config={"loggers": {"progress": {"config": config}}, "ops": ops or {}}, raise_on_error=False
+    )
     took = time.perf_counter() - t0
     if result.success:
         return True, f"{group}: {config['total_steps']} steps in {took / 60:.1f} min (run {result.run_id[:8]}, log {log_file})"
     failed = [e.step_key for e in result.all_events if e.is_step_failure]
     return False, f"{group}: FAILED at {', '.join(failed) or 'run start'} after {took / 60:.1f} min (run {result.run_id[:8]}, log {log_file})"
+
+
+def _ops(parser: argparse.ArgumentParser, text: str) -> dict:
+    """The steps' config of --config-json; anything but {"ops": {...}} is refused (a config without its "ops" key
+    would otherwise run on the defaults, the bundled data, and replace the user's tables)."""
+    try:
+        config = json.loads(text)
+    except json.JSONDecodeError as e:
+        parser.error(f"--config-json: not JSON ({e})")
+    if not isinstance(config, dict) or set(config) - {"ops"} or not isinstance(config.get("ops", {}), dict):
+        parser.error('--config-json: expected {"ops": {STEP: {"config": {...}}}}, got ' + text[:80])
+    return config.get("ops", {})
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -51,17 +60,20 @@ def main(argv: list[str] | None = None) -> int:
     unknown = [g for g in args.groups if g not in groups]
     if unknown:
         parser.error(f"unknown group {', '.join(unknown)}; the groups are {', '.join(groups)}")
-    try:
-        ops = json.loads(args.config_json).get("ops", {})
-    except (json.JSONDecodeError, AttributeError) as e:
-        parser.error(f"--config-json: not a JSON object with an 'ops' key ({e})")
+    ops = _ops(parser, args.config_json)
     jobs = {g: defs.resolve_job_def(groups[g]) for g in args.groups}
     strangers = sorted(set(ops) - {step for job in jobs.values() for step in job.graph.node_dict})
     if strangers:
         parser.error(f"--config-json names steps {', '.join(strangers)} that the groups {', '.join(args.groups)} do not run")
+    own = {g: {k: v for k, v in ops.items() if k in job.graph.node_dict} for g, job in jobs.items()}
+    for group, job in jobs.items():  # every group's config checked before the first run, not minutes into the second
+        try:
+            dg.validate_run_config(job, {"ops": own[group]})
+        except dg.DagsterInvalidConfigError as e:  # Dagster's message lists every error over many lines
+            parser.error(f"--config-json for {group}: " + "; ".join(err.message.replace("\n", " ") for err in e.errors))
     with dg.DagsterInstance.get() as instance:
         for group, job in jobs.items():
-            ok, line = run(job, group, instance, {k: v for k, v in ops.items() if k in job.graph.node_dict})
+            ok, line = run(job, group, instance, own[group])
             print(line, flush=True)
             if not ok:
                 return 1

@@ -87,10 +87,13 @@ def test_config_json_configures_steps_and_a_failure_is_one_line(tmp_path, monkey
     out, err = capsys.readouterr()
     assert "none.csv: no such file" in err and "aviation: FAILED at flight_ingest" in out
     assert "Not executing" not in err  # the steps skipped after the failure are not each an error line
-    bad_field = {"ops": {"flight_ingest": {"config": {"source_pth": "x.csv"}}}}
-    assert materialize.main(["aviation", "--config-json", json.dumps(bad_field)]) == 1
-    out = capsys.readouterr().out
-    assert out.startswith("aviation: invalid config: ") and "source_pth" in out and len(out.strip().splitlines()) == 1
-    with pytest.raises(SystemExit) as exc:
-        materialize.main(["aviation", "--config-json", '{"ops": {"dcb_cases": {}}}'])
-    assert exc.value.code == 2 and "names steps dcb_cases that the groups aviation do not run" in capsys.readouterr().err
+    for config, message in [
+        ({"ops": {"flight_ingest": {"config": {"source_pth": "x.csv"}}}}, "--config-json for aviation: Received unexpected config entry \"source_pth\""),
+        ({"ops": {"dcb_cases": {}}}, "names steps dcb_cases that the groups aviation do not run"),
+        ({"flight_ingest": {"config": {"source_path": "x.csv"}}}, 'expected {"ops": {STEP: {"config": {...}}}}'),  # "ops" forgotten
+        ({"ops": []}, 'expected {"ops": {STEP: {"config": {...}}}}'),
+    ]:
+        with pytest.raises(SystemExit) as exc:  # before any run: a second group's bad config is not found minutes in
+            materialize.main(["aviation", "--config-json", json.dumps(config)])
+        last = capsys.readouterr().err.strip().splitlines()[-1]  # after argparse's usage: the error, on one line
+        assert exc.value.code == 2 and last.startswith("python -m pipelines.materialize: error: ") and message in last

@@ -12,15 +12,28 @@ import subprocess
 import sys
 
 
+def _unusable(host: str, port: str) -> str | None:
+    """Why the UI cannot serve on host:port, or None. A busy port matters most: dagster dev would log "Serving ..."
+    and keep its daemon running with no webserver."""
+    try:
+        addresses = socket.getaddrinfo(host, int(port), type=socket.SOCK_STREAM)  # IPv4 and IPv6 alike
+    except (socket.gaierror, ValueError) as e:
+        return f"cannot serve on {host}:{port} ({e}); set TRAFFICLEARN_UI_HOST / TRAFFICLEARN_UI_PORT"
+    for family, kind, proto, _, address in addresses:
+        with socket.socket(family, kind, proto) as probe:
+            probe.settimeout(1.0)
+            if probe.connect_ex(address) == 0:
+                return f"{host}:{port} is already in use (another `make dev`?); set TRAFFICLEARN_UI_PORT to use another port"
+    return None
+
+
 def main() -> int:
     host = os.environ.get("TRAFFICLEARN_UI_HOST", "127.0.0.1")
     port = os.environ.get("TRAFFICLEARN_UI_PORT", "3000")
-    with socket.socket() as probe:
-        # dagster dev would log "Serving ..." and keep its daemon running with no webserver
-        if probe.connect_ex((host, int(port))) == 0:
-            print(f"error: {host}:{port} is already in use (another `make dev`?); "
-                  f"set TRAFFICLEARN_UI_PORT to use another port", file=sys.stderr)
-            return 1
+    problem = _unusable(host, port)
+    if problem:
+        print(f"error: {problem}", file=sys.stderr)
+        return 1
     repo = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     cmd = [sys.executable, "-m", "dagster", "dev", "-m", "pipelines.definitions", "-d", repo, "-h", host, "-p", port]
     # run from DAGSTER_HOME: from the checkout, dagster dev warns that the template dagster.yaml there "will not be used";

@@ -65,3 +65,18 @@ def test_dev_server_refuses_a_busy_port(isolated_home):
                               capture_output=True, text=True, timeout=60)
     assert proc.returncode == 1
     assert proc.stderr.startswith("error:") and "already in use" in proc.stderr and len(proc.stderr.splitlines()) == 1
+
+
+def test_unusable_host_or_port_is_one_line_and_ipv6_is_probed():
+    from pipelines.dev import _unusable
+
+    assert "cannot serve on nohost.invalid:3000" in _unusable("nohost.invalid", "3000")
+    assert "cannot serve on 127.0.0.1:abc" in _unusable("127.0.0.1", "abc")
+    if socket.has_ipv6:
+        with socket.socket(socket.AF_INET6) as busy:
+            try:
+                busy.bind(("::1", 0))
+            except OSError:  # no IPv6 loopback on this machine
+                return
+            busy.listen()
+            assert "already in use" in _unusable("::1", str(busy.getsockname()[1]))

@@ -45,18 +45,19 @@ def test_atomic_write_leaves_old_file_on_failure(monkeypatch):
     assert [p.name for p in path.parent.iterdir()] == ["data.parquet"]
 
 
-def test_written_files_follow_the_umask():
+@pytest.mark.parametrize("umask, mode", [(0o022, 0o644), (0o027, 0o640), (0o002, 0o664)])
+def test_written_files_follow_the_umask(umask, mode):
     """Not mkstemp's 0600: others may read the warehouse, plots and recordings as the umask allows."""
     import os
 
     from warehouse.artifacts import save_plot
 
-    old = os.umask(0o022)
+    old = os.umask(umask)
     try:
         paths = [storage.write_table("ingest_summary", _summary()), save_plot("p", b"png")[0]]
     finally:
         os.umask(old)
-    assert [oct(p.stat().st_mode & 0o777) for p in paths] == [oct(0o644)] * 2
+    assert [oct(p.stat().st_mode & 0o777) for p in paths] == [oct(mode)] * 2
 
 
 def test_partitioned_table_view():

@@ -75,10 +75,13 @@ def cmd_shell(args) -> int:
         while True:
             try:
                 line = input("sql> " if not buffer else "...> ")
-            except (EOFError, KeyboardInterrupt):
+            except EOFError:
                 print()
                 if buffer.strip():  # piped input whose last statement lacks its ';'
                     _shell_run(con, buffer)
+                return 0
+            except KeyboardInterrupt:  # Ctrl-C abandons what was typed, as in a shell
+                print()
                 return 0
             buffer += line + "\n"
             if not buffer.strip().endswith(";"):
@@ -94,6 +97,9 @@ def _shell_run(con: duckdb.DuckDBPyConnection, statement: str) -> None:
             print(_render(rel, "table"))
     except duckdb.Error as e:
         print(f"error: {str(e).splitlines()[0]}")
+    except KeyboardInterrupt:  # Ctrl-C during a long query stops the query, not the shell
+        con.interrupt()
+        print("interrupted")
 
 
 def cmd_schema(args) -> int:

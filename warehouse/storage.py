@@ -10,7 +10,7 @@ a concurrent Dagster run) only ever see a complete file.
 """
 
 import os
-import tempfile
+import uuid
 from pathlib import Path
 
 import polars as pl
@@ -66,12 +66,9 @@ def conform(table: str, df: pl.DataFrame) -> pa.Table:
 def temp_beside(path: Path, suffix: str = "") -> str:
     """A new temp file in `path`'s folder, to be renamed onto `path`, with the permissions a plain open() would
     give (umask applied): mkstemp's 0600 would leave every table, plot and model unreadable to other accounts."""
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=suffix, dir=path.parent)
-    umask = os.umask(0)
-    os.umask(umask)
-    os.fchmod(fd, 0o666 & ~umask)
-    os.close(fd)
-    return tmp
+    tmp = path.parent / f".tmp-{uuid.uuid4().hex}{suffix}"
+    os.close(os.open(tmp, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666))  # the kernel applies the umask
+    return str(tmp)
 
 
 def write_table(table: str, df: pl.DataFrame, partition: dict[str, str] | None = None) -> Path:

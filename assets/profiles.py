@@ -19,11 +19,14 @@ def default_profile() -> str:
 def resolve(config, defaults: dict[str, dict]) -> dict:
     """The config's values for the fields its profile has defaults for: the explicit value, else the profile's.
 
-    `defaults`: profile -> {field: value}. One line, before any work, for an unknown profile, fewer than one
-    episode, or an empty list of seeds."""
+    `defaults`: profile -> {field: value}. One line, before any work, for an unknown profile, a negative count,
+    fewer than one episode, or an empty list of seeds."""
     if config.profile not in defaults:
         raise ValueError(f"profile {config.profile!r}: expected one of {', '.join(defaults)}")
-    values = {k: v if (v := getattr(config, k, None)) is not None else d for k, d in defaults[config.profile].items()}
+    assert set(defaults[config.profile]) <= set(type(config).model_fields), "a profile default names no config field"
+    values = {k: v if (v := getattr(config, k)) is not None else d for k, d in defaults[config.profile].items()}
+    if negative := {k: v for k, v in values.items() if isinstance(v, int) and not isinstance(v, bool) and v < 0}:
+        raise ValueError(f"{', '.join(f'{k} {v}' for k, v in negative.items())}: expected counts >= 0")
     if values.get("episodes", 1) < 1:
         raise ValueError(f"episodes {values['episodes']}: expected at least 1")
     if values.get("seeds", [0]) == []:

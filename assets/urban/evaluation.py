@@ -37,9 +37,13 @@ def _run(context, jobs, workers):
 @dg.asset(group_name="urban", description="Metrics of every method on every copy not used in training (greedy policies, ε = 0).")
 def urban_results(context: dg.AssetExecutionContext, config: EvaluationConfig, urban_scenarios: pl.DataFrame, urban_training: pl.DataFrame) -> dg.Output:
     from models.urban.experiments import evaluation_jobs, held_out, results_rows
+    from models.urban.network import UrbanInputError
 
     copies = held_out(urban_scenarios, config.scenarios, config.copies)
     jobs = evaluation_jobs(copies, load_policies(urban_training), config.methods)
+    if not jobs:  # e.g. only learned methods with no policies for the selected scenarios
+        raise UrbanInputError(f"urban_results: nothing to evaluate for methods {config.methods} on scenarios {config.scenarios or 'all'} "
+                              "(a learned method needs its urban_training policies for the scenario)")
     df = results_rows(*_run(context, jobs, config.workers or usable_cores()))
     summary = df.group_by("scenario", "method", maintain_order=True).agg(
         pl.len().alias("runs"), pl.col("avg_travel_time_s").mean(), pl.col("avg_speed_mps").mean(),
@@ -66,7 +70,8 @@ def urban_trajectories(context: dg.AssetExecutionContext, config: EvaluationConf
     copies = held_out(urban_scenarios, config.scenarios, config.copies)
     jobs = evaluation_jobs(copies, load_policies(urban_training), config.methods, record_copy=0)
     if not jobs:  # one copy of each selected scenario evaluated with its own policies (no reuse copy): nothing to concatenate
-        raise UrbanInputError(f"urban_trajectories: none of the scenarios {config.scenarios} is evaluated with its own policies")
+        raise UrbanInputError(f"urban_trajectories: none of the scenarios {config.scenarios or 'all'} is evaluated with its own policies "
+                              f"by the methods {config.methods}")
     df = trajectories_rows(*_run(context, jobs, config.workers or usable_cores()))
     metadata = {}
     for (scenario,), g in df.group_by("scenario", maintain_order=True):

@@ -260,11 +260,12 @@ def check_units(df: pl.DataFrame, schema: Schema, source: str) -> None:
                 f"{source}: '{schema.columns['groundspeed_mps']}' has a median of {med:,.0f} m/s after conversion: "
                 f"wrong unit for the {schema.name} schema"
             )
-    # Metres read as feet put a cruise at 35,000 ft near 11,000 "ft"; at a median ground speed above 290 kt
-    # (150 m/s) an airliner's 95th percentile is well above 16,000 ft (below FL100 the limit is 250 kt IAS).
-    if schema is TRAFFIC and p95_alt is not None and p95_alt < 16_000 * FT and (gs.median() or 0) > 150:
+    # Metres read as feet put a cruise at 35,000 ft near 11,000 "ft" and FL450 at 13,700; feet data flying at a
+    # median ground speed above 290 kt (150 m/s) has its 95th percentile above 14,000 ft unless it was cut to
+    # low levels only (250 kt IAS below FL100).
+    if schema is TRAFFIC and p95_alt is not None and p95_alt < 14_000 * FT and (gs.median() or 0) > 150:
         raise IngestError(
-            f"{source}: 'altitude' stays below 16,000 while flying at airliner speed: it looks like metres or "
+            f"{source}: 'altitude' stays below 14,000 while flying at airliner speed: it looks like metres or "
             "flight levels, but the traffic schema reads it as feet"
         )
 

@@ -1,8 +1,9 @@
 """Reference solutions: the exact integer program (HiGHS) and first-come-first-served ground delays.
 
 Integer program (minimum total delay under the capacity constraints; among the schedules with that delay, the
-fewest regulated flights, d >= REGULATED_MIN, so that the reference does not depend on which of several equally
-short schedules a solver version finds):
+fewest regulated flights, d >= REGULATED_MIN, so that the reference's total delay and regulated count do not depend
+on which of several equally short schedules a solver version finds; its per-flight delays, and so avg_delay_min,
+still may: {5, 1, 1} and {4, 2, 1} tie on both):
 
     min  Σ_f Σ_d ((F + 1) · d + [d >= REGULATED_MIN]) · x_fd          F flights: the second term sums to at most F
     s.t. Σ_d x_fd = 1                                   every flight gets one delay d ∈ {0..MaxDelay}

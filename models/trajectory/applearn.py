@@ -149,6 +149,8 @@ class AppLearnParams:
         shares = (self.start_anywhere_fraction, self.route_start_fraction, self.goal_start_fraction)
         if min(shares) < 0 or sum(shares) > 1:  # past 1 the last kinds would silently never be drawn (mix_starts)
             raise ValueError(f"training start shares (anywhere, route, final approach) = {shares}: each >= 0, together <= 1")
+        if self.episodes < 1:
+            raise ValueError(f"episodes = {self.episodes}: at least 1")
         if not self.reward_scales or min(self.reward_scales) <= 0:
             raise ValueError(f"reward_scales = {self.reward_scales}: at least one, each > 0")
 

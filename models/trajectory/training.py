@@ -47,9 +47,9 @@ class Setup:
 def prepare(tracks: pl.DataFrame, modes: pl.DataFrame, flights: pl.DataFrame, splits: pl.DataFrame,
             weather: pl.DataFrame, dt_s: float) -> Setup:
     # the actions are per step: 10 s tracks read as 20 s ones halve every speed and double every time
-    step_s = tracks.select(pl.col("ts").diff().over("flight_id").dt.total_microseconds().mode().first()).item()
-    if step_s is not None and step_s / 1e6 != dt_s:
-        raise TrajectoryDataError(f"tracks_20s has a {step_s / 1e6:g} s step but dt_s is {dt_s:g} s: "
+    step_us = tracks.select(pl.col("ts").diff().over("flight_id").dt.total_microseconds().mode().first()).item()
+    if step_us is not None and step_us != round(dt_s * 1e6):  # in whole µs, as resample makes the grid
+        raise TrajectoryDataError(f"tracks_20s has a {step_us / 1e6:g} s step but dt_s is {dt_s:g} s: "
                                   "set dt_s of trajectory_models and trajectory_evaluation to the tracks' step")
     demos = {p: demonstrations(tracks, modes, flights, splits, p) for p in (*PHASES, "all")}
     bbox = (float(tracks["lon"].min()), float(tracks["lat"].min()), float(tracks["lon"].max()), float(tracks["lat"].max()))

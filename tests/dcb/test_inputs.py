@@ -48,11 +48,12 @@ def test_malformed_so6_lines_are_quarantined_and_counted(tmp_path):
 
 def test_so6_times_must_be_hhmmss_and_tabs_separate_fields(tmp_path):
     hhmm = GOOD[2].replace("120000 121000", "1200 1210")  # HHMM: not 00:12:00
+    lost_zero = GOOD[2].replace("120000 121000", "12000 121000")  # 01:20:00 without its leading zero: not 12:00:00
     tabs = GOOD[0].replace(" ", "\t")
     path = tmp_path / "day.so6"
-    path.write_text("\n".join([hhmm, tabs]) + "\n")
+    path.write_text("\n".join([hhmm, tabs, lost_zero]) + "\n")
     segments, rejects = read_so6(path)
-    assert rejects.select("line_number", "reason").rows() == [(1, "bad_time_or_date")]
+    assert rejects.select("line_number", "reason").rows() == [(1, "bad_time_or_date"), (3, "bad_time_or_date")]
     assert segments["flight_id"].to_list() == ["F1"]
 
 

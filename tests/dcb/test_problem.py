@@ -82,6 +82,17 @@ def test_among_equally_short_schedules_the_optimum_regulates_fewest():
     assert delay.tolist() == [0, 2, 2]
 
 
+def test_the_tie_break_never_buys_a_minute_of_delay():
+    # 8 min with two regulated flights (h1, h2 +4) against 9 min with none (s +3, pushing t1 and t2 on): a weight of the
+    # second term not below one minute would pick the 9 minutes
+    rows = [("h1", "A", 56, 5), ("s", "A", 57, 5), ("s", "C", 117, 5), ("h2", "C", 116, 5), ("s", "D", 178, 5),
+            ("t1", "D", 237, 5), ("t1", "E", 297, 5), ("t2", "E", 357, 5)]
+    p = make_problem(rows, {"A": 1, "C": 1, "D": 1, "E": 1}, max_delay_min=6)
+    delay, _ = solve_optimum(p)
+    assert brute_force(p) == (8, 2)
+    assert dict(zip(p.flight_ids, delay.tolist())) == {"h1": 4, "h2": 4, "s": 0, "t1": 0, "t2": 0}
+
+
 def test_optimum_reports_infeasible_within_max_delay():
     from models.dcb.optimum import InfeasibleError
 

@@ -38,6 +38,10 @@ def read_first_states(path: str | Path) -> pl.DataFrame:
         raise PredictionInputError(f"flights file {path}: missing column(s) {', '.join(missing)} (need {', '.join(REQUIRED)})")
     if df.is_empty():  # before the type checks: a header-only CSV has string columns
         raise PredictionInputError(f"flights file {path}: no rows")
+    if df.schema["ts"] == pl.String:  # ISO strings, as a CSV's are parsed
+        parsed = df["ts"].str.to_datetime(time_zone="UTC", strict=False)
+        if parsed.null_count() == df["ts"].null_count():
+            df = df.with_columns(ts=parsed)
     if not df.schema["ts"].is_temporal():
         raise PredictionInputError(f"flights file {path}: column ts must be a UTC timestamp, got {df.schema['ts']}")
     try:

@@ -177,6 +177,7 @@ def test_prediction_cli_and_bad_inputs(setup, trained, tmp_path, capsys):
     (pl.lit(None, pl.Float64).alias("lon"), "missing or NaN lon/lat/alt_m"),
     (pl.lit(-5000.0).alias("alt_m"), "below -500 m"),
     (None, "no rows"),
+    (pl.lit("yesterday").alias("ts"), "column ts must be a UTC timestamp"),
 ])
 def test_prediction_input_values_are_checked(tmp_path, change, message):
     first = pl.DataFrame({"flight_id": ["f1"], "ts": ["2022-02-27T04:12:20Z"], "lon": [37.5], "lat": [56.0], "alt_m": [1120.0], "route": ["UUEE-UMKK"]})
@@ -206,3 +207,11 @@ def test_mode_selection_keeps_to_the_flights_side_of_the_airspace_closure(setup)
     own_side = np.where(start_day(test.start_s) >= closure_day, after[pred.modes] > 0, after[pred.modes] < 1)
     assert own_side.all(), [test.flight_ids[i] for i in np.flatnonzero(~own_side)]
     assert np.mean(pred.modes == test.modes) >= 0.85
+
+
+def test_prediction_reads_iso_time_strings_from_parquet_as_from_csv(tmp_path):
+    first = pl.DataFrame({"flight_id": ["f1"], "ts": ["2022-02-27T04:12:20Z"], "lon": [37.5], "lat": [56.0], "alt_m": [1120.0], "route": ["UUEE-UMKK"]})
+    first.write_csv(tmp_path / "f.csv")
+    first.write_parquet(tmp_path / "f.parquet")
+    from_csv, from_parquet = read_first_states(tmp_path / "f.csv"), read_first_states(tmp_path / "f.parquet")
+    assert from_parquet["ts"].dtype.is_temporal() and from_parquet["ts"].to_list() == from_csv["ts"].to_list()

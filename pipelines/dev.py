@@ -16,6 +16,8 @@ def _unusable(host: str, port: str) -> str | None:
     """Why the UI cannot serve on host:port, or None. A busy port matters most: dagster dev would log "Serving ..."
     and keep its daemon running with no webserver."""
     try:
+        if not 1 <= int(port) <= 65535:
+            raise ValueError("ports are 1-65535")
         addresses = socket.getaddrinfo(host, int(port), type=socket.SOCK_STREAM)  # IPv4 and IPv6 alike
     except (socket.gaierror, ValueError) as e:
         return f"cannot serve on {host}:{port} ({e}); set TRAFFICLEARN_UI_HOST / TRAFFICLEARN_UI_PORT"
@@ -46,7 +48,9 @@ def main() -> int:
         signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
     # `dagster dev` still works; its notice that the `dg` CLI (not installed) supersedes it only confuses
-    env = {**os.environ, **homes, "PYTHONWARNINGS": "ignore:Function `dev_command` is superseded"}
+    quiet = ",".join(filter(None, [os.environ.get("PYTHONWARNINGS"), "ignore:Function `dev_command` is superseded"]))
+    env = {**os.environ, **homes, "PYTHONWARNINGS": quiet}
+    os.makedirs(cwd, exist_ok=True)  # `make dev` makes DAGSTER_HOME; `python -m pipelines.dev` may not have
     child = subprocess.Popen(cmd, preexec_fn=restore_defaults, cwd=cwd, env=env)
     print(f"Dagster UI on http://{host}:{port} (Ctrl-C stops it)", flush=True)
 

@@ -72,6 +72,7 @@ def test_unusable_host_or_port_is_one_line_and_ipv6_is_probed():
 
     assert "cannot serve on nohost.invalid:3000" in _unusable("nohost.invalid", "3000")
     assert "cannot serve on 127.0.0.1:abc" in _unusable("127.0.0.1", "abc")
+    assert "ports are 1-65535" in _unusable("127.0.0.1", "70000")
     if socket.has_ipv6:
         with socket.socket(socket.AF_INET6) as busy:
             try:

@@ -89,11 +89,12 @@ def test_config_json_configures_steps_and_a_failure_is_one_line(tmp_path, monkey
     assert "Not executing" not in err  # the steps skipped after the failure are not each an error line
     for config, message in [
         ({"ops": {"flight_ingest": {"config": {"source_pth": "x.csv"}}}}, "--config-json for aviation: Received unexpected config entry \"source_pth\""),
-        ({"ops": {"dcb_cases": {}}}, "names steps dcb_cases that the groups aviation do not run"),
+        ({"ops": {"trajectory_models": {}}}, "names steps trajectory_models that the groups aviation, dcb do not run"),
         ({"flight_ingest": {"config": {"source_path": "x.csv"}}}, 'expected {"ops": {STEP: {"config": {...}}}}'),  # "ops" forgotten
         ({"ops": []}, 'expected {"ops": {STEP: {"config": {...}}}}'),
+        ({"ops": {"dcb_delays": {"config": {"episodes": "many"}}}}, "--config-json for dcb: "),  # the second group's
     ]:
         with pytest.raises(SystemExit) as exc:  # before any run: a second group's bad config is not found minutes in
-            materialize.main(["aviation", "--config-json", json.dumps(config)])
+            materialize.main(["aviation", "dcb", "--config-json", json.dumps(config)])
         last = capsys.readouterr().err.strip().splitlines()[-1]  # after argparse's usage: the error, on one line
         assert exc.value.code == 2 and last.startswith("python -m pipelines.materialize: error: ") and message in last

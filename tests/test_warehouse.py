@@ -98,7 +98,7 @@ def test_cli_tables_sql_formats(capsys):
     assert err.startswith("error:") and len(err.strip().splitlines()) == 1
     for query, n in (("", 0), ("SELECT 1; SELECT 2", 2)):
         assert main(["sql", query]) == 1
-        assert capsys.readouterr().err.strip() == f"error: expected one SQL statement, got {n} (several: python -m warehouse shell)"
+        assert capsys.readouterr().err.strip() == f"error: expected one SQL statement, got {n}" + (" (several: python -m warehouse shell)" if n else "")
     # an error DuckDB only raises while fetching rows, not while planning
     assert main(["sql", "SELECT CAST(outcome AS INTEGER) FROM ingest_summary"]) == 1
     err = capsys.readouterr().err
@@ -138,3 +138,21 @@ def test_data_dictionary_in_readme():
     assert data_dictionary_markdown() in readme, "README data dictionary is stale: python -m warehouse schema --markdown"
     for name in TABLES:
         assert f"`{name}`" in readme
+
+
+def test_shell_survives_an_interrupted_query(capsys):
+    """Ctrl-C during a long query (DuckDB raises 'Query interrupted') ends the query, not the shell."""
+    import os
+    import signal
+    import threading
+
+    import duckdb
+
+    from warehouse.__main__ import _shell_run
+
+    con = duckdb.connect()
+    threading.Timer(0.5, os.kill, (os.getpid(), signal.SIGINT)).start()  # as Ctrl-C: DuckDB raises RuntimeError
+    _shell_run(con, "SELECT count(*) FROM range(100000000000) a;")
+    assert capsys.readouterr().out.startswith("error: ")
+    _shell_run(con, "SELECT 3 AS y;")
+    assert "3" in capsys.readouterr().out

@@ -53,7 +53,7 @@ def cmd_sql(args) -> int:
         try:
             n = len(con.extract_statements(args.query))
             if n != 1:  # DuckDB would run them all and show the last result only
-                print(f"error: expected one SQL statement, got {n} (several: python -m warehouse shell)", file=sys.stderr)
+                print(f"error: expected one SQL statement, got {n}" + (" (several: python -m warehouse shell)" if n > 1 else ""), file=sys.stderr)
                 return 1
             rel = con.sql(args.query)
             # DuckDB runs a SELECT lazily: conversion and other run-time errors come at fetch time.
@@ -80,9 +80,10 @@ def cmd_shell(args) -> int:
                 if buffer.strip():  # piped input whose last statement lacks its ';'
                     _shell_run(con, buffer)
                 return 0
-            except KeyboardInterrupt:  # Ctrl-C abandons what was typed, as in a shell
+            except KeyboardInterrupt:  # Ctrl-C abandons what was typed, as in a shell; Ctrl-D quits
                 print()
-                return 0
+                buffer = ""
+                continue
             buffer += line + "\n"
             if not buffer.strip().endswith(";"):
                 continue
@@ -95,11 +96,8 @@ def _shell_run(con: duckdb.DuckDBPyConnection, statement: str) -> None:
         rel = con.sql(statement)
         if rel is not None:
             print(_render(rel, "table"))
-    except duckdb.Error as e:
+    except (duckdb.Error, RuntimeError) as e:  # RuntimeError "Query interrupted": Ctrl-C stops the query, not the shell
         print(f"error: {str(e).splitlines()[0]}")
-    except KeyboardInterrupt:  # Ctrl-C during a long query stops the query, not the shell
-        con.interrupt()
-        print("interrupted")
 
 
 def cmd_schema(args) -> int:

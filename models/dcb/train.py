@@ -148,7 +148,7 @@ def _make(learner_cls, problem: DCBProblem, n_states: int, lr: float):
     return IndependentQ(problem.n_flights, n_states, lr=lr)
 
 
-def train(problem: DCBProblem, method: str, seed: int, episodes: int = EPISODES, log=None, state: str = "thesis",
+def train(problem: DCBProblem, method: str, seed: int, episodes: int = EPISODES, state: str = "thesis",
           reward: str = "thesis", learning_rate: float = LEARNING_RATE, readout: str = "repair") -> TrainResult:
     """Train `method` on `problem` (`episodes` per level) and return its solution (greedy rollout or best episode).
 
@@ -181,8 +181,6 @@ def train(problem: DCBProblem, method: str, seed: int, episodes: int = EPISODES,
                 best = (hot, delay.sum(), delay)
             if e % 50 == 0 or e == episodes - 1:
                 curve.append((n, hot, int(delay.sum())))
-                if log and e % max(1, episodes // 5) == 0:
-                    log(f"{method} seed {seed} level {level}: episode {e}/{episodes}, hotspots left {hot}, total delay {delay.sum()} min")
             n += 1
     delay, hot = run_episode(problem, learner, ground, 0.0, rng, learn=False)
     greedy = (int(hot), int(delay.sum()))

@@ -122,6 +122,16 @@ def test_traffic_altitude_in_metres_is_refused(tmp_path, small_raw, to_unit):
         ingest(_write(traffic, tmp_path / "m.csv"))
 
 
+def test_traffic_feet_cut_to_low_levels_is_kept(tmp_path, small_raw):
+    """Feet data of a low sector (FL100-FL150) flown at airliner speed is not mistaken for metres."""
+    traffic = small_raw.select(
+        timestamp="time", icao24="icao24", latitude="lat", longitude="lon", groundspeed=pl.col("velocity") / KT,
+        altitude=(pl.col("baroaltitude") / FT).clip(10_000, 15_000),
+    )
+    tracks, _, _ = ingest(_write(traffic, tmp_path / "low.csv"))
+    assert tracks.height > 0 and tracks["alt_m"].max() == pytest.approx(15_000 * FT)
+
+
 def test_spikes_and_ground_points_rejected(tmp_path, small_raw):
     df = small_raw.with_row_index("i")
     spike_rows = df.filter(pl.col("lastposupdate").is_not_null()).gather_every(5003)["i"]

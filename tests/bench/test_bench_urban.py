@@ -18,12 +18,11 @@ import benchlib as b
 from models.libsumo_import import import_libsumo
 from models.urban.col_marl import EpisodeJob, RouteAgentsQ, numpy_params, run_episode
 from models.urban.experiments import REAL_NET
-
-libsumo = import_libsumo()
 from models.urban.network import artificial_network, enumerate_routes, sumo_network
 from models.urban.scenarios import Demand, write_copy
 from models.urban.sim import STEP_S, ScenarioFiles
 
+libsumo = import_libsumo()
 TARGET_RATIO = 0.5
 
 

@@ -19,7 +19,7 @@ def test_dcb_assets_materialise_on_a_slice(tmp_path):
     result = dg.materialize(ASSETS + CHECKS, resources={"io_manager": ParquetIOManager()}, run_config={"ops": {
         "dcb_airspace": {"config": {"source_path": str(path)}},
         "dcb_cases": {"config": {"capacity_scales": [0.9]}},
-        "dcb_delays": {"config": {"episodes": 5, "seeds": [0, 1], "methods": ["MIRL", "HCMARL"]}},
+        "dcb_delays": {"config": {"episodes": 5, "seeds": [0, 1], "methods": ["MIRL", "HCMARL"], "workers": 2}},
     }})
     assert result.success
     summary = read_table("dcb_demand_summary")

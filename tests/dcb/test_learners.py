@@ -6,7 +6,7 @@ import pytest
 from models.dcb.loop import PerFlightEpisodes, PerFlightQ
 from models.dcb.mirl import IndependentQ
 from models.dcb.optimum import solve_optimum
-from models.dcb.train import ABSTRACT_STEP_MIN, GROUND, METHODS, Level, run_episode, train
+from models.dcb.train import ABSTRACT_STEP_MIN, GROUND, METHODS, Level, run_episode, train, train_job
 
 
 def test_small_real_case(small_case):
@@ -103,3 +103,12 @@ def test_per_flight_episode_equals_vectorised(small_case, level):
         d_loop, hot_loop = per_flight.run_episode(loop, level, eps, rng_loop)
         assert np.array_equal(d_vec, d_loop) and hot_vec == hot_loop
     assert np.array_equal(vec.q, loop.q) and np.abs(vec.q).sum() > 0 and d_vec.sum() > 0
+
+
+def test_a_worker_trains_with_the_options_it_is_given(small_case):
+    """dcb_delays sends (problem, method, seed, episodes, options) to worker processes: the options must arrive."""
+    options = {"reward": "overload", "learning_rate": 0.1, "readout": "best_episode"}
+    there = train_job((small_case, "MIRL", 0, 20, options))
+    here = train(small_case, "MIRL", 0, 20, **options)
+    assert np.array_equal(there.delay_min, here.delay_min) and there.source == here.source
+    assert not np.array_equal(there.delay_min, train(small_case, "MIRL", 0, 20).delay_min)  # the options change the result

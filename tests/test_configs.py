@@ -35,6 +35,7 @@ def test_unset_fields_take_the_profile_and_set_ones_win():
     (lambda: dcb_plan(DCBTrainingConfig(seeds=[])), "seeds is empty"),
     (lambda: dcb_plan(DCBTrainingConfig(methods=["HCMARL2", "MIRL"])), r"DCB methods \['HCMARL2'\]: expected one or more of MIRL"),
     (lambda: dcb_plan(DCBTrainingConfig(methods=[])), "DCB methods none"),
+    (lambda: dcb_plan(DCBTrainingConfig(reward="global")), "unknown DCB reward 'global'"),
     (lambda: case_scales(CasesConfig(capacity_scales=[0.951, 0.949])), r"give the cases \['cap95', 'cap95'\]"),
     (lambda: case_scales(CasesConfig(capacity_scales=[])), "expected one or more scales > 0"),
     (lambda: case_scales(CasesConfig(capacity_scales=[0.9, -0.5])), "expected one or more scales > 0"),

@@ -8,7 +8,7 @@ from assets.dcb.cases import problems
 from assets.profiles import default_profile, resolve
 from models.dcb.experiment import delay_rows
 from models.dcb.mirl import LEARNING_RATE
-from models.dcb.train import METHODS, train_job
+from models.dcb.train import METHODS, check_options, train_job
 from models.parallel import ProcessPool, usable_cores
 
 # per profile: episodes per abstraction level and seeds; the thesis trains 15,000 episodes per level, 10 seeds
@@ -31,10 +31,12 @@ class TrainingConfig(dg.Config):
 
 
 def training_plan(config: TrainingConfig) -> dict:
-    """episodes and seeds of the config or its profile; one line, before any training, for an unknown or no method."""
+    """episodes and seeds of the config or its profile; one line, before any training, for an unknown or no method
+    or an option the learners cannot use."""
     unknown = sorted(set(config.methods) - set(METHODS))
     if unknown or not config.methods:
         raise ValueError(f"DCB methods {unknown or 'none'}: expected one or more of {', '.join(METHODS)}")
+    check_options(config.state, config.reward, config.learning_rate, config.readout)
     return resolve(config, PROFILE)
 
 

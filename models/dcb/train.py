@@ -148,14 +148,8 @@ def _make(learner_cls, problem: DCBProblem, n_states: int, lr: float):
     return IndependentQ(problem.n_flights, n_states, lr=lr)
 
 
-def train(problem: DCBProblem, method: str, seed: int, episodes: int = EPISODES, state: str = "thesis",
-          reward: str = "thesis", learning_rate: float = LEARNING_RATE, readout: str = "repair") -> TrainResult:
-    """Train `method` on `problem` (`episodes` per level) and return its solution (greedy rollout or best episode).
-
-    state: "thesis" (d_i, h_i) or "extended" (d_i, h_i, x_i), see `local_state`; reward: "thesis" (Eq 5.2-5.4
-    per flight), "difference" (`DCBProblem.difference_reward`) or "overload" (`DCBProblem.overload_reward`); learning_rate:
-    η of Eq 5.6 / 5.7 (thesis 0.01); readout: "repair" (greedy rollout and best episode each through `readout.polish`)
-    or "best_episode" (the two as they are)."""
+def check_options(state: str, reward: str, learning_rate: float, readout: str) -> None:
+    """One line for an option `train` cannot use (dcb_delays asks before it starts any training)."""
     if state not in STATES:
         raise ValueError(f"unknown DCB local state {state!r}: expected one of {', '.join(STATES)}")
     if reward not in REWARDS:
@@ -164,6 +158,17 @@ def train(problem: DCBProblem, method: str, seed: int, episodes: int = EPISODES,
         raise ValueError(f"unknown DCB read-out {readout!r}: expected one of {', '.join(READOUTS)}")
     if not 0 < learning_rate <= 1:
         raise ValueError(f"DCB learning rate {learning_rate} is outside (0, 1]")
+
+
+def train(problem: DCBProblem, method: str, seed: int, episodes: int = EPISODES, state: str = "thesis",
+          reward: str = "thesis", learning_rate: float = LEARNING_RATE, readout: str = "repair") -> TrainResult:
+    """Train `method` on `problem` (`episodes` per level) and return its solution (greedy rollout or best episode).
+
+    state: "thesis" (d_i, h_i) or "extended" (d_i, h_i, x_i), see `local_state`; reward: "thesis" (Eq 5.2-5.4
+    per flight), "difference" (`DCBProblem.difference_reward`) or "overload" (`DCBProblem.overload_reward`); learning_rate:
+    η of Eq 5.6 / 5.7 (thesis 0.01); readout: "repair" (greedy rollout and best episode each through `readout.polish`)
+    or "best_episode" (the two as they are)."""
+    check_options(state, reward, learning_rate, readout)
     learner_cls, abstract = METHODS[method]
     ground = replace(GROUND, n_extra=STATES[state])
     abstract = abstract and replace(abstract, n_extra=STATES[state])

@@ -32,3 +32,9 @@ def resolve(config, defaults: dict[str, dict]) -> dict:
     if values.get("seeds", [0]) == []:
         raise ValueError("seeds is empty: expected at least one seed")
     return values
+
+
+def check_names(what: str, given, known) -> None:
+    """One line, before any work, for names not among `known` or for none at all."""
+    if (unknown := sorted(set(given) - set(known))) or not given:
+        raise ValueError(f"{what} {unknown or 'none'}: expected one or more of {', '.join(known)}")

@@ -5,7 +5,7 @@ import polars as pl
 from pydantic import Field
 
 from assets.dcb.cases import problems
-from assets.profiles import default_profile, resolve
+from assets.profiles import check_names, default_profile, resolve
 from models.dcb.experiment import delay_rows
 from models.dcb.mirl import LEARNING_RATE
 from models.dcb.train import METHODS, check_options, train_job
@@ -33,9 +33,7 @@ class TrainingConfig(dg.Config):
 def training_plan(config: TrainingConfig) -> dict:
     """episodes and seeds of the config or its profile; one line, before any training, for an unknown or no method
     or an option the learners cannot use."""
-    unknown = sorted(set(config.methods) - set(METHODS))
-    if unknown or not config.methods:
-        raise ValueError(f"DCB methods {unknown or 'none'}: expected one or more of {', '.join(METHODS)}")
+    check_names("DCB methods", config.methods, METHODS)
     check_options(config.state, config.reward, config.learning_rate, config.readout)
     return resolve(config, PROFILE)
 

@@ -36,14 +36,9 @@ def _run(context, jobs, workers):
 
 @dg.asset(group_name="urban", description="Metrics of every method on every copy not used in training (greedy policies, ε = 0).")
 def urban_results(context: dg.AssetExecutionContext, config: EvaluationConfig, urban_scenarios: pl.DataFrame, urban_training: pl.DataFrame) -> dg.Output:
-    from models.urban.experiments import evaluation_jobs, held_out, results_rows
-    from models.urban.network import UrbanInputError
+    from models.urban.experiments import evaluation_jobs, results_rows
 
-    copies = held_out(urban_scenarios, config.scenarios, config.copies)
-    jobs = evaluation_jobs(copies, load_policies(urban_training), config.methods)
-    if not jobs:  # e.g. only learned methods with no policies for the selected scenarios
-        raise UrbanInputError(f"urban_results: nothing to evaluate for methods {config.methods} on scenarios {config.scenarios or 'all'} "
-                              "(a learned method needs its urban_training policies for the scenario)")
+    jobs = evaluation_jobs(urban_scenarios, load_policies(urban_training), config.methods, scenarios=config.scenarios, copies=config.copies)
     df = results_rows(*_run(context, jobs, config.workers or usable_cores()))
     summary = df.group_by("scenario", "method", maintain_order=True).agg(
         pl.len().alias("runs"), pl.col("avg_travel_time_s").mean(), pl.col("avg_speed_mps").mean(),
@@ -62,16 +57,12 @@ def urban_thesis_tables(urban_results: pl.DataFrame, urban_scenarios: pl.DataFra
 @dg.asset(group_name="urban", description="1 s trajectories of one evaluation copy per trained scenario and method; Fig 4.4 profiles; rerun replay.")
 def urban_trajectories(context: dg.AssetExecutionContext, config: EvaluationConfig, urban_scenarios: pl.DataFrame,
                        urban_training: pl.DataFrame, urban_routes: pl.DataFrame) -> dg.Output:
-    from models.urban.experiments import evaluation_jobs, held_out, trajectories_rows
-    from models.urban.network import UrbanInputError
+    from models.urban.experiments import evaluation_jobs, trajectories_rows
     from models.urban.plots import busiest_route, junction_offsets_m, route_profile_png
     from models.urban.recording import write_episode_recording
 
-    copies = held_out(urban_scenarios, config.scenarios, config.copies)
-    jobs = evaluation_jobs(copies, load_policies(urban_training), config.methods, record_copy=0)
-    if not jobs:  # one copy of each selected scenario evaluated with its own policies (no reuse copy): nothing to concatenate
-        raise UrbanInputError(f"urban_trajectories: none of the scenarios {config.scenarios or 'all'} is evaluated with its own policies "
-                              f"by the methods {config.methods}")
+    jobs = evaluation_jobs(urban_scenarios, load_policies(urban_training), config.methods, record_copy=0,
+                           scenarios=config.scenarios, copies=config.copies)
     df = trajectories_rows(*_run(context, jobs, config.workers or usable_cores()))
     metadata = {}
     for (scenario,), g in df.group_by("scenario", maintain_order=True):

@@ -7,7 +7,7 @@ import numpy as np
 import polars as pl
 from pydantic import Field
 
-from assets.profiles import default_profile, resolve
+from assets.profiles import check_names, default_profile, resolve
 from warehouse.artifacts import artifact_path
 
 # per profile: episodes per (scenario, method, seed), seeds, and the scenarios some methods are limited to (the others
@@ -45,9 +45,8 @@ def training_plan(config: TrainingConfig, trained_scenarios: list[str]) -> dict:
 
     plan = resolve(config, PROFILE)
     only_on = plan["method_scenarios"]
-    unknown = sorted((set(config.methods) | set(only_on)) - set(METHODS_RL))
-    if unknown or not config.methods:
-        raise ValueError(f"urban methods {unknown or 'none'}: expected one or more of {', '.join(METHODS_RL)}")
+    check_names("urban methods", config.methods, METHODS_RL)
+    check_names("urban methods", [*config.methods, *only_on], METHODS_RL)  # method_scenarios' keys too
     strangers = sorted({s for names in only_on.values() for s in names} - set(trained_scenarios))
     if strangers:
         raise ValueError(f"method_scenarios names {strangers}, not trained scenarios: expected some of {', '.join(trained_scenarios)}")

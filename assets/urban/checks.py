@@ -4,7 +4,7 @@ import dagster as dg
 import polars as pl
 
 from assets.checks import schema_checks
-from models.urban.network import junction_census
+from models.urban.network import SIGNAL_FREE_TYPES, junction_census
 from warehouse.storage import read_table
 
 TABLES = ["urban_routes", "urban_scenarios", "urban_training", "urban_results", "urban_trajectories", "urban_thesis_tables"]
@@ -15,7 +15,7 @@ def networks_unsignalized() -> dg.AssetCheckResult:
     bad = {}
     for path in read_table("urban_routes")["net_path"].unique():
         c = junction_census(path)
-        if c.traffic_lights or set(c.types) - {"right_before_left", "dead_end"}:
+        if c.traffic_lights or set(c.types) - SIGNAL_FREE_TYPES:
             bad[path] = c.types
     return dg.AssetCheckResult(passed=not bad, metadata={"offending": dg.MetadataValue.json(bad)})
 

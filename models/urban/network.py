@@ -3,7 +3,8 @@
 Every network is made *unsignalized*: no traffic lights and no priority roads, every junction of type
 `right_before_left` (thesis §4.3.1). `right_before_left` rather than `unregulated` because SUMO never
 checks collisions inside `unregulated` junctions (and `getJunctionFoes` crashes on them); the controlled
-vehicles ignore the right-of-way rule anyway (speed mode 32), the SUMO baselines (IDM, Krauss) obey it.
+vehicles ignore the right-of-way rule anyway (their speed modes, models.urban.sim's and cnn_marl's, leave the
+right-of-way bit off), the SUMO baselines (IDM, Krauss) obey it.
 """
 
 import gzip
@@ -16,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import sumolib
 
+# the only junction types of an unsignalized network: dead ends are the outer ends of its entry and exit roads
 SIGNAL_FREE_TYPES = {"right_before_left", "dead_end"}
 # SUMO cannot insert a vehicle at the 10 m/s entry speed on a shorter entry road (its length, gap and braking distance
 # before the junction): its vehicles would wait outside the network all episode (Monaco's 7.5-19.9 m entries; on a test
@@ -129,7 +131,7 @@ class JunctionCensus:
 
 
 def junction_census(path: Path) -> JunctionCensus:
-    """What a network's junctions are: the tests assert no traffic lights and no priority junctions."""
+    """What a network's junctions are: the tests and the networks_unsignalized check assert no traffic lights and no priority junctions."""
     net = read_net(path)
     types: dict[str, int] = {}
     for n in net.getNodes():

@@ -1,6 +1,5 @@
 """The real Dagster pipeline end to end on real data: assets, checks, metadata, SQL over the result."""
 
-import polars as pl
 import pytest
 
 from pipelines.definitions import defs

@@ -25,7 +25,6 @@ from models.trajectory.env import WeatherCube
 from models.trajectory.metrics import haversine_km, matched_errors
 
 RUNNING, SUCCESS, OUT_OF_BOX, STEP_LIMIT = 0, 1, 2, 3
-STATUS_NAMES = {RUNNING: "running", SUCCESS: "success", OUT_OF_BOX: "out_of_box", STEP_LIMIT: "step_limit"}
 # raw observation columns every learner maps to its own features
 OBS_COLUMNS = ("lon_deg", "lat_deg", "alt_m", "elapsed_s", "temperature_k", "wind_u_mps", "wind_v_mps")
 WEATHER_COLUMNS = ("temperature_k", "wind_u_mps", "wind_v_mps")

@@ -81,11 +81,6 @@ def matched_errors(actual: np.ndarray, predicted: np.ndarray) -> dict[str, float
     }
 
 
-def eta_error_s(actual_duration_s: np.ndarray, predicted_duration_s: np.ndarray) -> np.ndarray:
-    """Absolute ETA error per trajectory: |predicted - actual time to reach the goal| in seconds."""
-    return np.abs(np.asarray(predicted_duration_s, float) - np.asarray(actual_duration_s, float))
-
-
 def error_growth(actual: np.ndarray, predicted: np.ndarray, dt_s: float, horizon_min: int) -> np.ndarray:
     """Error at each minute of look-ahead (time-aligned, not DTW): (horizon_min, 3) of 3D, along-, cross-track nm.
 
@@ -103,11 +98,6 @@ def error_growth(actual: np.ndarray, predicted: np.ndarray, dt_s: float, horizon
     along = np.abs((err[:, :2] * heading).sum(axis=1))
     cross = np.abs(err[:, 0] * -heading[:, 1] + err[:, 1] * heading[:, 0])
     return np.stack([np.linalg.norm(err, axis=1), along, cross], axis=1)
-
-
-def reached_goal(end_lon_lat: np.ndarray, goal_lon_lat: np.ndarray, radius_km: float = 10.0) -> np.ndarray:
-    """Success per trajectory: its last point is within radius_km of its goal (great-circle, haversine)."""
-    return haversine_km(end_lon_lat, goal_lon_lat) <= radius_km
 
 
 def haversine_km(a_lon_lat: np.ndarray, b_lon_lat: np.ndarray) -> np.ndarray:

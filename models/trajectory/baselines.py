@@ -11,6 +11,7 @@ import torch
 
 from models.trajectory.data import Demonstrations
 from models.trajectory.env import DAY0_S, TrajectoryEnv, rollout
+from models.trajectory.metrics import NM_M, NM_PER_DEG_LAT
 
 OBSERVED_STEPS = 9  # 3 minutes at 20 s
 
@@ -34,12 +35,12 @@ def mode_means(train: Demonstrations) -> dict[int, np.ndarray]:
 
 def predict_mode_mean(means: dict[int, np.ndarray], train: Demonstrations, observed: list[np.ndarray],
                       routes: list[str]) -> tuple[list[np.ndarray], np.ndarray]:
-    """Per flight: the mean trajectory of the route's mode nearest to its first observed points (km-ish units)."""
+    """Per flight: the mean trajectory of the route's mode nearest to its first observed points (mean distance in nm)."""
     preds, modes = [], []
     for obs, route in zip(observed, routes):
         k = min(OBSERVED_STEPS, len(obs))
         cands = train.route_modes(route)
-        scale = np.array([60 * np.cos(np.radians(obs[0, 1])), 60.0, 1 / 1852.0])  # deg, deg, m -> nm
+        scale = np.array([NM_PER_DEG_LAT * np.cos(np.radians(obs[0, 1])), NM_PER_DEG_LAT, 1 / NM_M])  # deg, deg, m -> nm
         dist = [np.linalg.norm((means[g][:k] - obs[:k]) * scale, axis=1).mean() for g in cands]
         best = cands[int(np.argmin(dist))]
         preds.append(means[best])

@@ -40,8 +40,9 @@ EXPLORATION_FRACTION = 0.8  # ... over this share of the episodes; the rest is p
 # the thesis trains "at the end of each episode" without saying how much: 40 steps beat 10 at the demo's 50 episodes
 # (fewer collisions on Sc1 and the real network, docs/history/urban.md) for 2-4x the training time; chapter 3's variant keeps its own (cnn_marl)
 GRADIENT_STEPS_PER_EPISODE = 40
-# Q is learnt on rewards / L (same greedy policy): with rewards of ±L = ±100 the tanh net's output layer would
-# need ~1,000 Adam steps at lr 1e-3 just to reach the scale of Q, more than the demo's whole budget
+# Q is learnt on rewards / L (same greedy policy): with rewards of ±L = ±1000 the tanh net's output would need at least
+# ~7,800 Adam steps at lr 1e-3 just to reach the scale of Q (a step moves it by at most lr x 129 output-layer weights),
+# more than the demo's whole budget (50 episodes x 40 gradient steps)
 REWARD_SCALE = 1.0 / GOAL_REWARD
 # training log: a row per route agent for every k-th episode and the last, k = max(episodes // LOG_EPISODES, 1); the
 # paper profile's every episode would be ~740 M rows (~90 GB), its logged ones ~10 M (the demo logs every episode)

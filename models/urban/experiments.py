@@ -23,6 +23,7 @@ METHODS_SUMO = {"idm": "IDM", "krauss": "Krauss"}
 # evaluation-only methods: a trained method's policies driven through the env's optional safety layer (models.urban.env.shield_masks),
 # reported as their own rows next to the learned policy's
 METHODS_SHIELDED = {"col_marl_shield": "col_marl"}
+EVAL_EPISODE_SEED = 7919  # SUMO seed of a held-out copy's evaluation episode: this + the copy number, for every method and policy seed
 
 
 @dataclass(frozen=True)
@@ -301,8 +302,8 @@ def evaluation_jobs(scenarios_df: pl.DataFrame, policies: dict, methods: list[st
             trained = METHODS_SHIELDED.get(method, method)
             for seed, (agents, params, guard) in sorted(policies.get((row["policy_scenario"], trained), {}).items()):
                 out.append(((row["scenario"], row["copy"], method, seed, row["n_vehicles"]),
-                            EpisodeJob(files, METHODS_RL[trained], agents, params, 0.0, 7919 + row["copy"], row["n_vehicles"], record, guard,
-                                       shield=method in METHODS_SHIELDED)))
+                            EpisodeJob(files, METHODS_RL[trained], agents, params, epsilon=0.0, seed=EVAL_EPISODE_SEED + row["copy"],
+                                       n_vehicles=row["n_vehicles"], record=record, leader_guard=guard, shield=method in METHODS_SHIELDED)))
                 if record:
                     break  # one policy per method is enough for the trajectories
     if not out:  # e.g. only learned methods with no policies for the selected scenarios
@@ -313,7 +314,7 @@ def evaluation_jobs(scenarios_df: pl.DataFrame, policies: dict, methods: list[st
 
 def results_rows(keys: list, outputs: list) -> pl.DataFrame:
     return pl.DataFrame(
-        [{"scenario": s, "copy": c, "method": m, "seed": seed, **{k: v for k, v in out[0].items()}, "n_vehicles": n}
+        [{"scenario": s, "copy": c, "method": m, "seed": seed, **out[0], "n_vehicles": n}
          for (s, c, m, seed, n), out in zip(keys, outputs)],
         schema_overrides={"copy": pl.Int64, "seed": pl.Int64, "collisions": pl.Int64, "teleports": pl.Int64, "arrived": pl.Int64, "n_vehicles": pl.Int64},
     ).select("scenario", "copy", "method", "seed", "avg_travel_time_s", "avg_speed_mps", "avg_fuel_mlps",

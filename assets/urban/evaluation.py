@@ -8,9 +8,9 @@ from pydantic import Field
 
 from assets.profiles import default_profile
 from assets.urban.training import load_policies
-from models.parallel import usable_cores
+from models.parallel import ProcessPool, usable_cores
 from models.markdown import markdown_table
-from models.urban.experiments import run_job
+from models.urban.experiments import evaluation_jobs, results_rows, run_job, thesis_markdown, thesis_tables, trajectories_rows
 from warehouse.artifacts import artifact_path, save_plot
 
 METHODS = ["col_marl", "col_marl_shield", "i_marl", "ch3_dqn_cnn", "idm", "krauss"]  # col_marl_shield: the learned policies under the optional safety layer, its own rows
@@ -25,8 +25,7 @@ class EvaluationConfig(dg.Config):
 
 
 def _run(context, jobs, workers):
-    from models.parallel import ProcessPool
-
+    """Run the (row keys, job) pairs of evaluation_jobs in worker processes: (row keys, outputs) in the same order."""
     t = time.perf_counter()
     with ProcessPool(workers, run_job) as pool:
         outputs = pool([j for _, j in jobs])
@@ -36,8 +35,6 @@ def _run(context, jobs, workers):
 
 @dg.asset(group_name="urban", description="Metrics of every method on every copy not used in training (greedy policies, ε = 0).")
 def urban_results(context: dg.AssetExecutionContext, config: EvaluationConfig, urban_scenarios: pl.DataFrame, urban_training: pl.DataFrame) -> dg.Output:
-    from models.urban.experiments import evaluation_jobs, results_rows
-
     jobs = evaluation_jobs(urban_scenarios, load_policies(urban_training), config.methods, scenarios=config.scenarios, copies=config.copies)
     df = results_rows(*_run(context, jobs, config.workers or usable_cores()))
     summary = df.group_by("scenario", "method", maintain_order=True).agg(
@@ -48,8 +45,6 @@ def urban_results(context: dg.AssetExecutionContext, config: EvaluationConfig, u
 
 @dg.asset(group_name="urban", description="Thesis tables 3.2, 4.3, 4.4, 4.5, 4.7-4.9 for our runs (mean ± std over copies x seeds).")
 def urban_thesis_tables(urban_results: pl.DataFrame, urban_scenarios: pl.DataFrame) -> dg.Output:
-    from models.urban.experiments import thesis_markdown, thesis_tables
-
     df = thesis_tables(urban_results, urban_scenarios)
     return dg.Output(df, metadata={"tables": dg.MetadataValue.md(thesis_markdown(df))})
 
@@ -57,11 +52,10 @@ def urban_thesis_tables(urban_results: pl.DataFrame, urban_scenarios: pl.DataFra
 @dg.asset(group_name="urban", description="1 s trajectories of one evaluation copy per trained scenario and method; Fig 4.4 profiles; rerun replay.")
 def urban_trajectories(context: dg.AssetExecutionContext, config: EvaluationConfig, urban_scenarios: pl.DataFrame,
                        urban_training: pl.DataFrame, urban_routes: pl.DataFrame) -> dg.Output:
-    from models.urban.experiments import evaluation_jobs, trajectories_rows
     from models.urban.plots import busiest_route, junction_offsets_m, route_profile_png
     from models.urban.recording import write_episode_recording
 
-    jobs = evaluation_jobs(urban_scenarios, load_policies(urban_training), config.methods, record_copy=0,
+    jobs = evaluation_jobs(urban_scenarios, load_policies(urban_training), config.methods, record=True,
                            scenarios=config.scenarios, copies=config.copies)
     df = trajectories_rows(*_run(context, jobs, config.workers or usable_cores()))
     metadata = {}

@@ -276,12 +276,12 @@ def held_out(scenarios_df: pl.DataFrame, scenarios: list[str] | None = None, cop
     return rows
 
 
-def evaluation_jobs(scenarios_df: pl.DataFrame, policies: dict, methods: list[str], record_copy: int | None = None,
+def evaluation_jobs(scenarios_df: pl.DataFrame, policies: dict, methods: list[str], record: bool = False,
                     scenarios: list[str] | None = None, copies: int | None = None):
     """(row keys, job) for every held-out copy (`held_out`: scenarios, copies) x method x seed. policies: (scenario,
     method) -> {seed: (agents, params, leader_guard)}; a METHODS_SHIELDED method drives its trained method's policies
-    with the safety layer on. With record_copy set, only that copy, recorded (for trajectories). One line when
-    nothing is left to run."""
+    with the safety layer on. record: only the first held-out copy of each scenario evaluated with its own policies,
+    one policy seed per method, recorded (for trajectories). One line when nothing is left to run."""
     from models.urban.col_marl import EpisodeJob
 
     known = [*METHODS_RL, *METHODS_SHIELDED, *METHODS_SUMO]
@@ -289,11 +289,11 @@ def evaluation_jobs(scenarios_df: pl.DataFrame, policies: dict, methods: list[st
         raise UrbanInputError(f"evaluation methods {unknown}: expected some of {', '.join(known)}")
     out = []
     rows = held_out(scenarios_df, scenarios, copies)
-    if record_copy is not None:
+    if record:
         rows = rows.filter(pl.col("scenario") == pl.col("policy_scenario"))
         rows = rows.filter(pl.col("copy") == pl.col("copy").min().over("scenario"))
     for row in rows.iter_rows(named=True):
-        files, record = files_of(row), record_copy is not None
+        files = files_of(row)
         for method in methods:
             if method in METHODS_SUMO:
                 out.append(((row["scenario"], row["copy"], method, 0, row["n_vehicles"]),
@@ -308,7 +308,7 @@ def evaluation_jobs(scenarios_df: pl.DataFrame, policies: dict, methods: list[st
                     break  # one policy per method is enough for the trajectories
     if not out:  # e.g. only learned methods with no policies for the selected scenarios
         raise UrbanInputError(f"nothing to evaluate for methods {methods} on scenarios {scenarios or 'all'}: a learned method needs "
-                              "its urban_training policies for the scenario" + ("; trajectories need a copy evaluated with its own policies" if record_copy is not None else ""))
+                              "its urban_training policies for the scenario" + ("; trajectories need a copy evaluated with its own policies" if record else ""))
     return out
 
 

@@ -39,7 +39,8 @@ from scipy.spatial.distance import squareform
 from sklearn.metrics import adjusted_rand_score, silhouette_score
 from sklearn.metrics.cluster import contingency_matrix
 
-PHASES = ("climb", "cruise", "descent")
+from models.aviation.phases import PHASES
+
 ALL = "all"
 FEATURES = ("lon", "lat", "alt_m")  # the thesis clusters on position only, not speed or time
 MIN_POINTS = 2  # a (sub-)trajectory needs at least two points to be a trajectory

@@ -15,7 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 import polars as pl
 
-PHASES = ("climb", "cruise", "descent")
+from models.aviation.phases import PHASES
+
 MODE_MATCH_POINTS = 20  # time-normalised points compared when a test flight is matched to a training mode
 KM_PER_DEG = 111.195
 

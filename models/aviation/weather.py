@@ -116,8 +116,8 @@ def read_weather(
     ``time`` is the *valid* time (analysis time + forecast step for forecasts).
 
     The format is detected from the file's first bytes ("GRIB", HDF5 or classic
-    NetCDF signature) and, failing that, from its extension
-    (.nc/.nc4/.netcdf -> NetCDF, .grib/.grib2/.grb/.grb2 -> GRIB).
+    NetCDF signature), never from its name: a file with neither signature is
+    refused, the message saying whether its extension promised GRIB or NetCDF.
     GRIB files are read with cfgrib, keeping only isobaric t/u/v messages; NetCDF4
     files with h5netcdf (which needs h5py), classic NetCDF3 files with scipy.
 

@@ -10,7 +10,7 @@ import numpy as np
 import torch
 
 from models.trajectory.data import Demonstrations
-from models.trajectory.env import DAY0_S, TrajectoryEnv, rollout
+from models.trajectory.env import TrajectoryEnv, rollout, start_day
 from models.trajectory.metrics import NM_M, NM_PER_DEG_LAT
 
 OBSERVED_STEPS = 9  # 3 minutes at 20 s
@@ -54,6 +54,6 @@ def predict_constant_velocity(env: TrajectoryEnv, observed: list[np.ndarray], go
     start = torch.as_tensor(np.stack([o[0] for o in observed]))
     step = torch.as_tensor(np.stack([o[1] - o[0] for o in observed]))
     ro = rollout(env, lambda obs: step, start, torch.as_tensor(goals, dtype=torch.float64), max_steps,
-                 torch.zeros(len(start), dtype=torch.float64), torch.as_tensor((np.asarray(start_s) - DAY0_S) / 86400.0))
+                 torch.zeros(len(start), dtype=torch.float64), torch.as_tensor(start_day(start_s)))
     pos, steps = ro.positions.numpy(), ro.steps.numpy()
     return [pos[: steps[k] + 1, k] for k in range(len(observed))], ro.reached.numpy()

@@ -34,6 +34,11 @@ EARTH_KM = 6371.0088
 DAY0_S = 1577836800.0  # 2020-01-01T00:00Z, origin of the start_day feature
 
 
+def start_day(epoch_s) -> np.ndarray:
+    """The start_day feature of flights starting at epoch_s: days since DAY0_S."""
+    return (np.asarray(epoch_s, dtype=np.float64) - DAY0_S) / 86400.0
+
+
 class WeatherCube:
     """Temperature and wind on a regular alt/lat/lon grid, read with trilinear interpolation."""
 

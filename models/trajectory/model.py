@@ -13,15 +13,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from models.trajectory.env import DAY0_S, EnvConfig, TrajectoryEnv, WeatherCube, rollout, to_goal_frame
+from models.trajectory.env import EnvConfig, TrajectoryEnv, WeatherCube, rollout, start_day, to_goal_frame
 from models.trajectory.nets import Policy, Scaler, Selector
 from models.trajectory.task import Task
 
 FORMAT = "trafficlearn.trajectory.v1"
-
-
-def start_day(epoch_s) -> np.ndarray:
-    return (np.asarray(epoch_s, dtype=np.float64) - DAY0_S) / 86400.0
 
 
 class TrajectoryModelError(ValueError):

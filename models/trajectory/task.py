@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import torch
 
 from models.trajectory.data import Demonstrations, expert_pairs
-from models.trajectory.env import DAY0_S, TrajectoryEnv, to_goal_frame
+from models.trajectory.env import TrajectoryEnv, start_day, to_goal_frame
 from models.trajectory.nets import Scaler
 
 
@@ -50,7 +50,7 @@ def build_task(demos: Demonstrations, env: TrajectoryEnv, dt_s: float) -> Task:
     # arrives exactly at its goal and the policy learns to converge on the goal it is given. At prediction
     # the goal is the chosen mode's goal (the mean end point of that mode's training demonstrations).
     pair_goal = torch.as_tensor(end, dtype=torch.float64)
-    day = torch.as_tensor((start_s - DAY0_S) / 86400.0)
+    day = torch.as_tensor(start_day(start_s))
     goals = torch.as_tensor(demos.goals, dtype=torch.float64)
     pos_t = torch.as_tensor(pos, dtype=torch.float64)
     mode_t = torch.as_tensor(mode)

@@ -1,8 +1,9 @@
 """Traffic demand and SUMO scenario files: vehicle classes (Table 4.1), arrivals, seeded copies.
 
 A scenario copy is three files in one folder: the unsignalized network, `vtypes_<model>.add.xml` (one per
-driver model: the agents' vehicles use IDM's file but are driven by the env; the baselines use IDM or
-Krauss) and `routes.rou.xml` (route definitions and the vehicles, sorted by departure).
+driver model: the agents' vehicles use Krauss's file under leader_guard, IDM's without it and in chapter 3's
+variant, but are driven by the env (models.urban.env); the baselines use IDM or Krauss) and `routes.rou.xml`
+(route definitions and the vehicles, sorted by departure).
 """
 
 from dataclasses import dataclass

@@ -85,7 +85,7 @@ class AppLearnParams:
     lr_final: float = 1e-5
     epsilon_start: float = 0.9  # ε-greedy, lowered every 100 episodes ...
     epsilon_every_episodes: int = 100
-    exploration_fraction: float = 0.75  # ... until 0 at 75 % of the episodes (episode 11,200 of 15,000)
+    exploration_fraction: float = 0.75  # ... until 0 after 75 % of the episodes (from episode 11,300 of 15,000: 11,250 rounded up to a block of 100)
     batch_size: int = 5000  # DQN mini-batch
     buffer_size: int = 200_000  # replay memory
     transitions_per_update: int = 50  # one DQN update every 50 environment steps
@@ -113,7 +113,7 @@ class AppLearnParams:
     # --- additions beyond the thesis (module docstring); the neutral value switches each off
     route_feature: bool = True  # φ_route in φ (reward and IRL)
     # the DQN's step reward is wᵀφ(s') - Σ_k max(w_k, 0) ≤ 0 (φ_k ∈ [0, 1]): with a step reward that can be
-    # positive, flying on near the route forever (r/(1-γ) = 200 r) beats the success bonus of 100, and the
+    # positive, flying on near the route forever (r/(1-γ) = 200 r) beat the success bonus (then 100), and the
     # greedy policy flew to the step limit. A constant per step; the IRL step (the QP on μ) is unchanged.
     nonpositive_reward: bool = True
     route_input: bool = True  # the Q-net also sees the signed offset from the route (tanh at 2σ) and the share of it left

@@ -45,7 +45,7 @@ from pettingzoo import ParallelEnv
 
 from models.urban.network import UrbanInputError, read_net
 from models.urban.scenarios import ACTIONS_MPS2, MIN_GAP_M, VEHICLE_TYPES
-from models.urban.sim import ACTION_S, SPEED_MODE_CAR_FOLLOWING, SPEED_MODE_FREE, ScenarioFiles, Simulation
+from models.urban.sim import ACTION_S, SPEED_MODE_CAR_FOLLOWING, SPEED_MODE_FREE, SPEED_MODE_SUMO, ScenarioFiles, Simulation
 
 GOAL_REWARD = 1000.0  # L of Eq 4.3 (not given; "not sensitive"): a second of delay must cost more ((1 - γ) L = 10) than Eq 4.6 saves by stopping (c2 + f(v) ≤ 6)
 SAFE_DIST_M = 20.0  # safe_dist of Eq 4.5-4.7 (thesis); the floor of the speed-dependent rules below
@@ -424,7 +424,7 @@ class UrbanParallelEnv(ParallelEnv):
             if v not in self.finished:
                 self.finished.add(v)
                 goal.add(v)
-                sim.ls.vehicle.setSpeedMode(v, 31)  # SUMO's safety checks back on
+                sim.ls.vehicle.setSpeedMode(v, SPEED_MODE_SUMO)  # SUMO's safety checks back on
                 sim.ls.vehicle.setSpeed(v, self.vmax)  # max acceleration up to vel_max (§4.3.1)
         keep = [i for i, v in enumerate(snap.ids) if v not in self.finished or v in goal]
         obs = {snap.ids[i]: state[i] for i in keep}

@@ -31,6 +31,7 @@ TELEPORT_AFTER_S = 120.0  # SUMO teleports a vehicle stuck this long (gridlock);
 # executed as is); CAR_FOLLOWING: only the safe speed behind the leader (with Krauss vTypes, the speed from which the
 # vehicle can still stop behind a leader braking hard), no right of way at junctions, no speed limits (turns included)
 SPEED_MODE_FREE, SPEED_MODE_CAR_FOLLOWING = 32, 1 + 32 + 64
+SPEED_MODE_SUMO = 31  # SUMO's default: bits 0-4, every check on (a vehicle past its last junction, §4.3.1's fixed rule)
 LEADER_LOOKAHEAD_M = 200.0  # braking from 40 m/s at 5 m/s² takes 160 m
 
 

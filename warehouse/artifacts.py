@@ -1,10 +1,9 @@
 """Files that are not tables (plots, rerun recordings, model files), kept under TRAFFICLEARN_HOME."""
 
 import base64
-import os
 from pathlib import Path
 
-from warehouse.storage import home, temp_beside
+from warehouse.storage import home, replace_atomically
 
 
 def artifact_path(kind: str, name: str) -> Path:
@@ -14,14 +13,7 @@ def artifact_path(kind: str, name: str) -> Path:
 
 
 def write_bytes_atomic(path: Path, data: bytes) -> Path:
-    tmp = temp_beside(path)
-    try:
-        Path(tmp).write_bytes(data)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    return replace_atomically(path, lambda tmp: Path(tmp).write_bytes(data))
 
 
 def save_plot(name: str, png: bytes) -> tuple[Path, str]:

@@ -11,6 +11,7 @@ a concurrent Dagster run) only ever see a complete file.
 
 import os
 import uuid
+from collections.abc import Callable
 from pathlib import Path
 
 import polars as pl
@@ -71,19 +72,25 @@ def temp_beside(path: Path, suffix: str = "") -> str:
     return str(tmp)
 
 
-def write_table(table: str, df: pl.DataFrame, partition: dict[str, str] | None = None) -> Path:
-    """Enforce the schema, then write atomically (temp file + rename). Returns the final path."""
-    arrow = conform(table, df)
-    path = table_path(table, partition)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = temp_beside(path, ".parquet")
+def replace_atomically(path: Path, write: Callable[[str], None], suffix: str = "") -> Path:
+    """`write(tmp)` to a new temp file beside `path`, then rename it onto `path`, so readers only ever see a
+    complete file; the temp file is removed when anything fails. Returns `path`."""
+    tmp = temp_beside(path, suffix)
     try:
-        pq.write_table(arrow, tmp, compression="zstd")
+        write(tmp)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
     return path
+
+
+def write_table(table: str, df: pl.DataFrame, partition: dict[str, str] | None = None) -> Path:
+    """Enforce the schema, then write atomically (temp file + rename). Returns the final path."""
+    arrow = conform(table, df)
+    path = table_path(table, partition)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return replace_atomically(path, lambda tmp: pq.write_table(arrow, tmp, compression="zstd"), ".parquet")
 
 
 def read_table(table: str, partition: dict[str, str] | None = None) -> pl.DataFrame:

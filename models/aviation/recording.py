@@ -15,7 +15,6 @@ over a few hundred km), z = altitude in km multiplied by `vertical_exaggeration`
 
 from __future__ import annotations
 
-import os
 import uuid
 from pathlib import Path
 
@@ -25,7 +24,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from models.aviation.plots import MODE_COLORS
-from warehouse.storage import temp_beside
+from warehouse.storage import replace_atomically
 
 EARTH_RADIUS_KM = 6371.0
 APPLICATION_ID = "trafficlearn_modes"
@@ -79,8 +78,7 @@ def write_modes_recording(
     runs = pts.group_by("flight_id", maintain_order=True).agg(pl.col("route", "mode").first(), n=pl.len())
     bounds = np.concatenate([[0], np.cumsum(runs["n"].to_numpy().astype(np.int64))])
 
-    tmp = temp_beside(path, ".rrd")
-    try:
+    def write(tmp: str) -> None:
         rec = rr.RecordingStream(APPLICATION_ID, recording_id=uuid.uuid4())
         rec.save(tmp, default_blueprint=_blueprint(vertical_exaggeration))  # sink first, then log
         rec.send_recording_name(f"trajectory modes, phase {phase}")
@@ -119,11 +117,8 @@ def write_modes_recording(
             )
         rec.flush()
         rec.disconnect()  # closes the file sink and writes the footer
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+
+    return replace_atomically(path, write, ".rrd")
 
 
 def read_recording_summary(path: Path) -> dict:

@@ -7,7 +7,6 @@ built by `points_for_recording`. rerun entity paths: `flights/<flight_id>/<sourc
 """
 
 import json
-import os
 import uuid
 from pathlib import Path
 
@@ -18,7 +17,7 @@ import rerun.blueprint as rrb
 
 from models.aviation.plots import MODE_COLORS
 from models.aviation.recording import _local_frame
-from warehouse.storage import temp_beside
+from warehouse.storage import replace_atomically
 
 APPLICATION_ID = "trafficlearn_trajectory_predictions"
 ACTUAL_COLOR = np.array([220, 30, 30], dtype=np.uint8)
@@ -57,14 +56,7 @@ def _color(source: str, sources: list[str]) -> np.ndarray:
 
 def _atomic(path: Path, suffix: str, write) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = temp_beside(path, suffix)
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    return replace_atomically(path, write, suffix)
 
 
 def write_prediction_recording(points: pl.DataFrame, path: Path, vertical_exaggeration: float = 10.0) -> Path:

@@ -4,7 +4,6 @@ on the `sim_time` timeline coloured by its route agent, collisions marked by red
 Open with `rerun <file>.rrd`. Written offline into a file sink (temp file + rename), no viewer spawned.
 """
 
-import os
 import uuid
 from pathlib import Path
 
@@ -13,7 +12,7 @@ import polars as pl
 import rerun as rr
 
 from models.urban.network import read_net
-from warehouse.storage import temp_beside
+from warehouse.storage import replace_atomically
 
 
 def _agent_colors(agents: list[str]) -> dict[str, np.ndarray]:
@@ -30,8 +29,8 @@ def write_episode_recording(traj: pl.DataFrame, net_path: str, path: Path, title
     net = read_net(net_path)
     lanes = [np.array(ln.getShape(), np.float32) for e in net.getEdges() for ln in e.getLanes()]
     colors = _agent_colors(traj["agent"].unique().to_list())
-    tmp = temp_beside(path, ".rrd")
-    try:
+
+    def write(tmp: str) -> None:
         rec = rr.RecordingStream("trafficlearn_urban", recording_id=uuid.uuid4())
         rec.save(tmp)
         rec.send_recording_name(title)
@@ -50,8 +49,5 @@ def write_episode_recording(traj: pl.DataFrame, net_path: str, path: Path, title
             rec.log(f"collisions/{rr.escape_entity_path_part(row['vehicle_id'])}", rr.Points2D([[row["x"], row["y"]]], colors=[[255, 0, 0]], radii=6.0))
         rec.flush()
         rec.disconnect()
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+
+    return replace_atomically(path, write, ".rrd")

@@ -35,7 +35,7 @@ def _rgb(k: int) -> np.ndarray:
     return np.array([int(h[i : i + 2], 16) for i in (0, 2, 4)], dtype=np.uint8)
 
 
-def _local_frame(pts: pl.DataFrame, vertical_exaggeration: float) -> np.ndarray:
+def local_frame(pts: pl.DataFrame, vertical_exaggeration: float) -> np.ndarray:
     """(n, 3) east/north km from the mean position, altitude km x exaggeration."""
     lat = pts["lat"].to_numpy()
     lon = pts["lon"].to_numpy()
@@ -72,7 +72,7 @@ def write_modes_recording(
         pts = pts.filter(pl.col("phase") == phase)
     pts = pts.join(m, on="flight_id", how="inner").sort("route", "flight_id", "ts")
 
-    xyz = _local_frame(pts, vertical_exaggeration) if pts.height else np.zeros((0, 3), np.float32)
+    xyz = local_frame(pts, vertical_exaggeration) if pts.height else np.zeros((0, 3), np.float32)
     latlon = pts.select("lat", "lon").to_numpy()
     ts = pts["ts"].dt.replace_time_zone(None).to_numpy().astype("datetime64[ns]")  # UTC, naive for rerun
     runs = pts.group_by("flight_id", maintain_order=True).agg(pl.col("route", "mode").first(), n=pl.len())

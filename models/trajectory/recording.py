@@ -3,7 +3,7 @@ file of Foxglove `foxglove.LocationFix` messages (JSON encoding) for Foxglove St
 
 Both take the long table of points (source = "actual" or a method name, flight_id, ts, lat, lon, alt_m)
 built by `points_for_recording`. rerun entity paths: `flights/<flight_id>/<source>`; MCAP topics:
-`/trajectory/<source>` with frame_id = flight_id.
+`/trajectory/<source>` (spaces as _, e.g. `/trajectory/bc_single`) with frame_id = flight_id.
 """
 
 import json
@@ -16,7 +16,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from models.aviation.plots import MODE_COLORS
-from models.aviation.recording import _local_frame
+from models.aviation.recording import local_frame
 from warehouse.storage import replace_atomically
 
 APPLICATION_ID = "trafficlearn_trajectory_predictions"
@@ -61,7 +61,7 @@ def _atomic(path: Path, suffix: str, write) -> Path:
 
 def write_prediction_recording(points: pl.DataFrame, path: Path, vertical_exaggeration: float = 10.0) -> Path:
     """rerun .rrd: per flight and source a static 3D line + map line, and the moving aircraft on the `time` timeline."""
-    xyz = _local_frame(points, vertical_exaggeration)
+    xyz = local_frame(points, vertical_exaggeration)
     latlon = points.select("lat", "lon").to_numpy()
     ts = points["ts"].dt.replace_time_zone(None).to_numpy().astype("datetime64[ns]")
     runs = points.group_by("flight_id", "source", maintain_order=True).agg(n=pl.len())

@@ -37,9 +37,14 @@ def _render(rel: duckdb.DuckDBPyRelation, fmt: str) -> str:
     return "\n".join(lines)
 
 
+def _table_names(con: duckdb.DuckDBPyConnection) -> list[str]:
+    """The materialised tables: the session's views (warehouse.duck)."""
+    return [r[0] for r in con.sql("SELECT view_name FROM duckdb_views() WHERE NOT internal").fetchall()]
+
+
 def cmd_tables(args) -> int:
     with connect() as con:
-        names = [r[0] for r in con.sql("SELECT view_name FROM duckdb_views() WHERE NOT internal").fetchall()]
+        names = _table_names(con)
         if not names:
             print("no tables materialised yet: run `make demo` or materialise assets with dagster")
             return 0
@@ -68,7 +73,7 @@ def cmd_sql(args) -> int:
 
 def cmd_shell(args) -> int:
     with connect() as con:
-        names = [r[0] for r in con.sql("SELECT view_name FROM duckdb_views() WHERE NOT internal").fetchall()]
+        names = _table_names(con)
         print(f"trafficlearn warehouse (read-only): {', '.join(sorted(names)) or 'no tables yet'}")
         print("End each statement with ';'. Ctrl-D to quit.")
         buffer = ""

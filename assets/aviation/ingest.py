@@ -49,8 +49,8 @@ def flight_ingest(context: dg.AssetExecutionContext, config: FlightIngestConfig)
                           + ", ".join(f"{k.removeprefix('rejected ')}={v:,}" for k, v in counts.items() if k.startswith("rejected"))
                           + "); check the thresholds (gap_split_s, min_points, max_alt_m, max_speed_mps)")
     context.log.info(f"ingested {config.source_path}: " + ", ".join(f"{k}={v:,}" for k, v in counts.items()))
-    context.log.info(f"{flights.height} flights on routes {flights['route'].value_counts().rows()}")
-    routes = {r: n for r, n in flights["route"].value_counts().rows()}
+    routes = dict(flights["route"].value_counts().rows())
+    context.log.info(f"{flights.height} flights on routes {routes}")
     return (
         dg.Output(tracks, metadata={"source": config.source_path, "flights": flights.height}),
         dg.Output(flights, metadata={"routes": dg.MetadataValue.json(routes)}),

@@ -17,8 +17,10 @@ from dagster._core.log_manager import get_log_record_metadata, has_log_record_me
 from tqdm import tqdm
 
 
-
 class ProgressHandler(logging.Handler):
+    """One run's records: a tqdm bar (or a line per finished step off a terminal), warnings and failed checks
+    printed, every record appended to `log_file`."""
+
     def __init__(self, total: int, desc: str, log_file: Path, stream=None):
         super().__init__(logging.DEBUG)
         self.stream = stream or sys.stderr

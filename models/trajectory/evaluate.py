@@ -105,7 +105,7 @@ def evaluate_model(setup: Setup, model: TrajectoryModel) -> Results:
         pred, _ = out[pm.phase]
         for i, f in enumerate(tf.ids):
             pts = pred.positions[i]
-            res.predictions += _prediction_rows(key, f, pm.phase, pts, tf.start_s[i], dt, _mode_label(setup, pm.phase, pred.modes[i]), step0[i])
+            res.predictions += _prediction_rows(key, f, pm.phase, pts, tf.start_s[i], dt, pm.mode_label(pred.modes[i]), step0[i])
             step0[i] += len(pts) - 1
             if pm.phase in PHASES and f in tf.phase[pm.phase]:
                 actual, _, true_mode = tf.phase[pm.phase][f]

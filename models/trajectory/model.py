@@ -36,6 +36,11 @@ class PhaseModel:
     def candidates(self, route: str) -> list[int]:
         return [g for g, (r, _) in enumerate(self.mode_keys) if r == route]
 
+    def mode_label(self, g: int) -> str:
+        """Mode g as route/cluster; empty without a selector (BC: one mode per route, nothing was chosen)."""
+        route, k = self.mode_keys[g]
+        return "" if self.selector is None else f"{route}/{k}"
+
 
 @dataclass
 class Prediction:

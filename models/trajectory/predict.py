@@ -75,13 +75,12 @@ def predict_flights(model: TrajectoryModel, first: pl.DataFrame) -> pl.DataFrame
     for pm in model.phases:
         pred, _ = out[pm.phase]
         for i, pts in enumerate(pred.positions):
-            route, k = pm.mode_keys[pred.modes[i]]
             skip = 0 if step0[i] == 0 else 1  # a phase starts where the previous ended: don't repeat that point
             steps = step0[i] + np.arange(skip, len(pts))
             rows.append(pl.DataFrame({
                 "flight_id": first["flight_id"][i], "method": model.config["method"], "scheme": model.config["scheme"], "phase": pm.phase,
                 "step": steps, "ts_s": start_s[i] + steps * dt, "lat": pts[skip:, 1], "lon": pts[skip:, 0], "alt_m": pts[skip:, 2],
-                "mode": "" if pm.selector is None else f"{route}/{k}"}))
+                "mode": pm.mode_label(pred.modes[i])}))
             step0[i] += len(pts) - 1
     df = pl.concat(rows)
     ts = pl.from_epoch((pl.col("ts_s") * 1e6).round().cast(pl.Int64), time_unit="us").dt.replace_time_zone("UTC")

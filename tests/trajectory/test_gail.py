@@ -108,6 +108,18 @@ def test_losses_decrease_and_learned_policy_beats_random(setup, trained):
     assert pick(learned) < 0.5 * pick(rnd)
 
 
+def test_predicted_mode_labels_name_the_flights_own_route(setup, trained):
+    """trajectory_predictions.mode is the chosen mode of the flight's route; empty for BC, which has one mode per route
+    (its mode index is a route index: read as a clustered mode it named the other route's modes)."""
+    s = setup[0]
+    test = s.demos["all"][1]
+    route_of = dict(zip(test.flight_ids, test.routes))
+    gail = evaluate_model(s, trained[0]).predictions
+    assert all(p["mode"].split("/")[0] == route_of[p["flight_id"]] for p in gail)
+    bc = train_model(s, "bc", "single", 0, Budget(bc_epochs=1, gail_iterations=0))[0]
+    assert {p["mode"] for p in evaluate_model(s, bc).predictions} == {""}
+
+
 def test_saved_model_reloads_and_predicts_identically(setup, trained, tmp_path):
     model, _ = trained
     test = setup[0].demos["all"][1]

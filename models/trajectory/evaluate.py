@@ -18,8 +18,8 @@ import numpy as np
 import polars as pl
 
 from models.trajectory.baselines import mode_means, predict_constant_velocity, predict_mode_mean
-from models.trajectory.data import PHASES
-from models.trajectory.metrics import METRIC_NAMES, error_growth, matched_errors
+from models.trajectory.data import PHASES, TrajectoryDataError
+from models.trajectory.metrics import METRIC_NAMES, error_growth, haversine_km, matched_errors
 from models.trajectory.model import TrajectoryModel
 from models.trajectory.training import Setup
 
@@ -95,6 +95,9 @@ def _fixed_length_rollouts(model: TrajectoryModel, actual: list[np.ndarray], rou
 
 def evaluate_model(setup: Setup, model: TrajectoryModel) -> Results:
     cfg, dt = model.config, setup.dt_s
+    if cfg.get("dt_s", dt) != dt:  # a roll-out step other than the training one moves the aircraft by the wrong distance
+        raise TrajectoryDataError(f"model {cfg['name']} was trained with dt_s {cfg['dt_s']:g} s but the evaluation's is {dt:g} s: "
+                                  "set dt_s of trajectory_evaluation to the models'")
     key = {"method": cfg["method"], "scheme": cfg["scheme"], "seed": cfg["seed"]}
     tf, res = test_flights(setup), Results()
     starts = np.stack([w[0] for w in tf.whole])
@@ -160,6 +163,7 @@ def evaluate_model_file(job: tuple) -> tuple[str, Results]:
 def evaluate_baselines(setup: Setup) -> Results:
     """constant_velocity and mode_mean, total and phase-wise (deterministic: reported as seed 0)."""
     tf, res, dt = test_flights(setup), Results(), setup.dt_s
+    radius_km = setup.env.cfg.goal_radius_km  # success as the environment counts it for the learned models
     train_all = setup.demos["all"][0]
     route_goal = {r: np.mean([p[-1] for p, rr in zip(train_all.points, train_all.routes) if rr == r], axis=0) for r in set(train_all.routes)}
     max_steps = int(1.5 * max(len(p) for p in train_all.points))
@@ -180,7 +184,7 @@ def evaluate_baselines(setup: Setup) -> Results:
             key = {"method": method, "scheme": "single", "seed": 0}
             for i, (f, a, p) in enumerate(zip(flights, actual, preds)):
                 if phase == "total":
-                    ok = cv_reached[i] if method == "constant_velocity" else float(np.linalg.norm((p[-1, :2] - goals[i, :2]) * [64, 111]) <= 10)
+                    ok = cv_reached[i] if method == "constant_velocity" else haversine_km(p[-1, :2], goals[i, :2]) <= radius_km
                     res.errors.append(_error_row({**key, "phase": phase}, f, a, p, eta_s=abs(len(p) - len(a)) * dt, success=float(ok)))
                     label = _mode_label(setup, "all", mm_modes[i]) if method == "mode_mean" else ""
                     res.predictions += _prediction_rows(key, f, "all", p, start_s[i], dt, label, 0)

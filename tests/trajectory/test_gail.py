@@ -1,5 +1,7 @@
 """Trajectory imitation on a real subset: metrics, environment, BC/GAIL learning, reload, determinism, CLI errors."""
 
+import copy
+from dataclasses import replace
 
 import numpy as np
 import polars as pl
@@ -10,7 +12,7 @@ from models.parallel import ProcessPool
 from models.trajectory.bc import train_bc, train_mode_classifier
 from models.trajectory.data import TrajectoryDataError, demonstrations
 from models.trajectory.env import DAY0_S
-from models.trajectory.evaluate import evaluate_model, evaluate_model_file, growth_table, metrics_table
+from models.trajectory.evaluate import evaluate_baselines, evaluate_model, evaluate_model_file, growth_table, metrics_table
 from models.trajectory.metrics import matched_errors
 from models.trajectory.model import TrajectoryModel, TrajectoryModelError, start_day
 from models.trajectory.nets import Policy, Selector
@@ -118,6 +120,26 @@ def test_predicted_mode_labels_name_the_flights_own_route(setup, trained):
     assert all(p["mode"].split("/")[0] == route_of[p["flight_id"]] for p in gail)
     bc = train_model(s, "bc", "single", 0, Budget(bc_epochs=1, gail_iterations=0))[0]
     assert {p["mode"] for p in evaluate_model(s, bc).predictions} == {""}
+
+
+def test_evaluation_refuses_a_model_trained_at_another_step(setup, trained):
+    model = trained[0]
+    other = TrajectoryModel({**model.config, "dt_s": 10.0}, model.phases, model.cube, model.bbox)
+    with pytest.raises(TrajectoryDataError, match="trained with dt_s 10 s but the evaluation's is 20 s"):
+        evaluate_model(setup[0], other)
+
+
+def test_mode_mean_success_is_the_environments_goal_radius(setup):
+    """The mode_mean baseline reaches its goal as the learned models do: within the environment's goal_radius_km
+    (it used a flat 64/111 km-per-degree distance and a literal 10 km)."""
+    def success(radius_km: float) -> set[float]:
+        env = copy.copy(setup[0].env)
+        env.cfg = replace(env.cfg, goal_radius_km=radius_km)
+        errors = evaluate_baselines(replace(setup[0], env=env)).errors
+        return {e["success"] for e in errors if e["method"] == "mode_mean" and e["phase"] == "total"}
+
+    assert success(5_000.0) == {1.0}
+    assert success(1e-6) == {0.0}
 
 
 def test_saved_model_reloads_and_predicts_identically(setup, trained, tmp_path):

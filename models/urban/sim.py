@@ -179,6 +179,7 @@ class Simulation:
 
         args = ["sumo", "-n", self.files.net, "-a", self.files.vtypes(self.model), "-r", self.files.routes,
                 "--step-length", str(self.step_s), "--seed", str(self.seed), "--begin", "0",
+                # the junction collision check as SPEC §3 prescribes it (mingap -0.5); mingap-factor 0: only real overlaps on lanes
                 "--collision.action", "remove", "--collision.check-junctions", "true",
                 "--collision.check-junctions.mingap", "-0.5", "--collision.mingap-factor", "0", "--time-to-teleport", str(TELEPORT_AFTER_S),
                 "--no-step-log", "true", "--no-warnings", "true", "--duration-log.disable", "true"]

@@ -8,6 +8,7 @@ from assets.dcb.training import TrainingConfig as DCBTrainingConfig
 from assets.dcb.training import training_plan as dcb_plan
 from assets.profiles import resolve
 from assets.trajectory.models import TrajectoryModelsConfig
+from assets.trajectory.models import training_plan as trajectory_plan
 from assets.urban.training import TrainingConfig as UrbanTrainingConfig
 from assets.urban.training import training_plan as urban_plan
 from models.trajectory.training import PROFILE_DEFAULTS
@@ -49,6 +50,8 @@ def test_unset_fields_take_the_profile_and_set_ones_win():
     (lambda: resolve(TrajectoryModelsConfig(bc_epochs=-1), PROFILE_DEFAULTS), "bc_epochs -1: expected counts >= 0"),
     (lambda: resolve(TrajectoryModelsConfig(profile="thesis"), PROFILE_DEFAULTS), "profile 'thesis'"),
     (lambda: resolve(TrajectoryModelsConfig(seeds=[]), PROFILE_DEFAULTS), "seeds is empty"),
+    (lambda: trajectory_plan(TrajectoryModelsConfig(algorithms=["gail"])), r"algorithms \['gail'\]: expected one or more of triple_gail"),
+    (lambda: trajectory_plan(TrajectoryModelsConfig(discriminators=[])), "discriminators none: expected one or more of wgan_gp"),
     (lambda: resolve(AppLearnConfig(seeds=[]), PROTOCOL), "seeds is empty"),
 ])
 def test_unusable_config_is_one_line(check, message):

@@ -9,7 +9,7 @@ import dagster as dg
 import polars as pl
 from pydantic import Field
 
-from assets.profiles import default_profile, resolve
+from assets.profiles import check_names, default_profile, resolve
 from warehouse.artifacts import artifact_path
 
 
@@ -24,20 +24,29 @@ class TrajectoryModelsConfig(dg.Config):
     workers: int | None = Field(default=None, description="bundles trained in parallel, one process (one core) each [None: the usable cores]")
 
 
+def training_plan(config: TrajectoryModelsConfig) -> dict:
+    """The profile's settings with the config's overrides; one line, before any work, for an unknown discriminator
+    or algorithm, or none at all."""
+    from models.trajectory.ppo import DISCRIMINATORS
+    from models.trajectory.training import GAILS, PROFILE_DEFAULTS
+
+    p = resolve(config, PROFILE_DEFAULTS)
+    check_names("discriminators", p["discriminators"], DISCRIMINATORS)
+    check_names("algorithms", p["algorithms"], GAILS)
+    return p
+
+
 @dg.asset(group_name="trajectory", description="Trained multi-modal GAIL (MMIL, SMIL) and BC models per seed; one model file each.")
 def trajectory_models(context: dg.AssetExecutionContext, config: TrajectoryModelsConfig, tracks_20s: pl.DataFrame,
                       trajectory_modes: pl.DataFrame, flights: pl.DataFrame, flight_splits: pl.DataFrame, weather: pl.DataFrame):
     import torch
 
-    from models.trajectory.ppo import DISCRIMINATORS
     from models.markdown import markdown_table
     from models.parallel import ProcessPool, usable_cores
-    from models.trajectory.training import PROFILE_DEFAULTS, Budget, prepare, runs, train_and_save
+    from models.trajectory.training import Budget, prepare, runs, train_and_save
 
     torch.set_num_threads(1)  # small nets; with 2 threads on a busy 2-core machine OpenMP contention made training ~10x slower
-    p = resolve(config, PROFILE_DEFAULTS)
-    if bad := [d for d in p["discriminators"] if d not in DISCRIMINATORS]:
-        raise ValueError(f"discriminators: unknown {bad}, expected {DISCRIMINATORS}")
+    p = training_plan(config)
     setup = prepare(tracks_20s, trajectory_modes, flights, flight_splits, weather, config.dt_s)
     todo = runs(p["algorithms"], p["discriminators"], p["seeds"])
     context.log.info(f"training {len(todo)} model bundles ({config.profile} profile: {p})")

@@ -7,7 +7,6 @@ import polars as pl
 from pydantic import Field
 
 from assets.profiles import default_profile
-from assets.urban.training import load_policies
 from models.parallel import ProcessPool, usable_cores
 from models.markdown import markdown_table
 from models.urban.experiments import evaluation_jobs, results_rows, run_job, thesis_markdown, thesis_tables, trajectories_rows
@@ -35,6 +34,8 @@ def _run(context, jobs, workers):
 
 @dg.asset(group_name="urban", description="Metrics of every method on every copy not used in training (greedy policies, ε = 0).")
 def urban_results(context: dg.AssetExecutionContext, config: EvaluationConfig, urban_scenarios: pl.DataFrame, urban_training: pl.DataFrame) -> dg.Output:
+    from models.urban.policy_file import load_policies  # imports torch: not at definitions load
+
     jobs = evaluation_jobs(urban_scenarios, load_policies(urban_training), config.methods, scenarios=config.scenarios, copies=config.copies)
     df = results_rows(*_run(context, jobs, config.workers or usable_cores()))
     summary = df.group_by("scenario", "method", maintain_order=True).agg(
@@ -53,6 +54,7 @@ def urban_thesis_tables(urban_results: pl.DataFrame, urban_scenarios: pl.DataFra
 def urban_trajectories(context: dg.AssetExecutionContext, config: EvaluationConfig, urban_scenarios: pl.DataFrame,
                        urban_training: pl.DataFrame, urban_routes: pl.DataFrame) -> dg.Output:
     from models.urban.plots import busiest_route, junction_offsets_m, route_profile_png
+    from models.urban.policy_file import load_policies
     from models.urban.recording import write_episode_recording
 
     jobs = evaluation_jobs(urban_scenarios, load_policies(urban_training), config.methods, record=True,

@@ -3,12 +3,11 @@
 import time
 
 import dagster as dg
-import numpy as np
 import polars as pl
 from pydantic import Field
 
 from assets.profiles import check_names, default_profile, resolve
-from warehouse.artifacts import artifact_path
+from warehouse.artifacts import artifact_path, write_bytes_atomic
 
 # per profile: episodes per (scenario, method, seed), seeds, and the scenarios some methods are limited to (the others
 # train on every trained scenario); the thesis trains 15,000 episodes (13,000 exploring). The demo trains chapter 3's
@@ -59,6 +58,7 @@ def urban_training(context: dg.AssetExecutionContext, config: TrainingConfig, ur
 
     from models.urban import col_marl
     from models.urban.experiments import METHODS_RL, files_of, route_agents, training_frame
+    from models.urban.policy_file import policy_bytes
     from models.parallel import ProcessPool, usable_cores
 
     torch.set_num_threads(1)
@@ -78,10 +78,9 @@ def urban_training(context: dg.AssetExecutionContext, config: TrainingConfig, ur
                     log = lambda msg: context.log.info(f"{scenario} seed {seed}: {msg}")  # noqa: E731
                     params, rows = col_marl.train(copies, agents, METHODS_RL[method], episodes, seed, pool, log, config.leader_guard,
                                                     config.gradient_steps)
-                    path = artifact_path("models", f"urban_{scenario}_{method}_seed{seed}.pt")
-                    torch.save({"params": params, "agents": agents, "variant": METHODS_RL[method], "scenario": scenario,
-                                "seed": seed, "episodes": episodes, "leader_guard": config.leader_guard,
-                                "gradient_steps": config.gradient_steps}, path)
+                    path = write_bytes_atomic(artifact_path("models", f"urban_{scenario}_{method}_seed{seed}.pt"), policy_bytes(
+                        params, agents, config.leader_guard, variant=METHODS_RL[method], scenario=scenario, seed=seed,
+                        episodes=episodes, gradient_steps=config.gradient_steps))
                     timings[f"{scenario}/{method}/seed{seed}"] = round(time.perf_counter() - t, 1)
                     learner_cpu[f"{scenario}/{method}/seed{seed}"] = round(time.process_time() - cpu, 1)
                     frames.append(training_frame(rows, scenario, method, seed, str(path)))
@@ -92,15 +91,3 @@ def urban_training(context: dg.AssetExecutionContext, config: TrainingConfig, ur
     return dg.Output(df, metadata={"train_seconds": dg.MetadataValue.json(timings), "learner_cpu_seconds": dg.MetadataValue.json(learner_cpu),
                                    "episodes": episodes, "leader_guard": config.leader_guard,
                                    "final_returns": dg.MetadataValue.json(last.to_dicts()), "workers": config.workers or usable_cores()})
-
-
-def load_policies(training: pl.DataFrame) -> dict:
-    """(scenario, method) -> {seed: (agents, numpy params, leader_guard)} from the model files listed in urban_training."""
-    import torch
-
-    out: dict = {}
-    for scenario, method, seed, path in training.select("scenario", "method", "seed", "model_path").unique().sort("seed").iter_rows():
-        blob = torch.load(path, weights_only=False)
-        params = {k: np.asarray(v) for k, v in blob["params"].items()}
-        out.setdefault((scenario, method), {})[seed] = (blob["agents"], params, blob.get("leader_guard", False))
-    return out

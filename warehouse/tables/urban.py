@@ -62,7 +62,7 @@ TABLES: list[Table] = [
             col("return", pa.float64(), "", "mean undiscounted return of the agent's vehicles in the episode (null: none)", nullable=True),
             col("epsilon", pa.float64(), "", "exploration probability of the episode"),
             col("loss", pa.float64(), "", "mean squared TD error of the agent's DDQN updates after the episode (null: empty buffer)", nullable=True),
-            col("model_path", pa.string(), "", "file with the trained weights and config (torch.save)"),
+            col("model_path", pa.string(), "", "policy file: weights, route agents and training config (models.urban.policy_file.load_policy)"),
         ),
     ),
     Table(

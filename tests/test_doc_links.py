@@ -7,7 +7,7 @@ import unicodedata
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-LINK = re.compile(r"\]\(([^)\s]+)\)")
+LINK = re.compile(r"\]\(([^)\s]+)\)|^\[[^\]]+\]:\s*(\S+)", re.MULTILINE)  # inline [text](target) and reference [name]: target
 
 
 def anchors(md: Path) -> set[str]:
@@ -25,7 +25,7 @@ def anchors(md: Path) -> set[str]:
 def dead_links(files: list[Path]) -> list[str]:
     dead = []
     for md in files:
-        for target in LINK.findall(md.read_text()):
+        for target in (inline or reference for inline, reference in LINK.findall(md.read_text())):
             if re.match(r"[a-z]+:", target):  # https:, mailto:
                 continue
             path, _, anchor = target.partition("#")
@@ -43,5 +43,5 @@ def test_relative_links_and_anchors_resolve():
 
 def test_a_dead_link_or_anchor_is_found(tmp_path):
     (tmp_path / "b.md").write_text("# Results × 2 – now\n```\n# not a heading\n```\n## Results × 2 – now\n")
-    (tmp_path / "a.md").write_text("[ok](b.md#results--2--now-1) [gone](c.md) [no](b.md#not-a-heading) [self](#top)\n# Top\n")
-    assert dead_links([tmp_path / "a.md"]) == ["a.md: c.md", "a.md: b.md#not-a-heading"]
+    (tmp_path / "a.md").write_text("[ok](b.md#results--2--now-1) [gone](c.md) [no](b.md#not-a-heading) [self](#top)\n# Top\n[r]: b.md#results\n")
+    assert dead_links([tmp_path / "a.md"]) == ["a.md: c.md", "a.md: b.md#not-a-heading", "a.md: b.md#results"]

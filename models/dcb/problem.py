@@ -1,7 +1,9 @@
 """The DCB problem as arrays: sector entries of all flights, hourly capacities, hotspots and the reward.
 
 A ground delay d_i (whole minutes) shifts every entry of flight i by d_i. A hotspot is a sector-hour
-whose entry count exceeds its capacity (thesis §5.3). Everything here is vectorised over all entries.
+whose entry count exceeds its capacity (thesis §5.3). Everything here is vectorised over all entries; the
+evaluation and the thesis reward, which the learners call at every episode step, are numba kernels
+(models/dcb/kernels.py: one pass over the entries instead of ~15 numpy calls on small arrays).
 
 Reward of flight-agent i (Eq 5.2-5.4), λ = 20:
 
@@ -21,6 +23,8 @@ from datetime import timedelta
 
 import numpy as np
 import polars as pl
+
+from models.dcb import kernels
 
 LAMBDA = 20.0  # Eq 5.2 trade-off between congestion and delay cost (thesis §5.6.2)
 AVG_DELAY_COST_EUR_PER_MIN = 81.0  # Eq 5.3 coefficient: Europe's average strategic delay cost per minute
@@ -79,14 +83,11 @@ class _Entries:
     def __post_init__(self):
         # for d in [0, 60] an entry at minute r = m mod 60 of its hour moves on at most one hour, and
         # ⌊(r + d) / 60⌋ = ⌊(r + 4 + d) / 64⌋ (r + d < 120): the key is a shift of a per-entry constant plus d,
-        # ~2x faster than the integer division (and than adding a comparison's bools, which numpy casts slowly)
-        if self.within_hour:
-            self.shifted = 64 * (self.key_base + self.whole_min // 60) + self.whole_min % 60 + 4
+        # cheaper than the integer division; unused otherwise (an empty array keeps the kernels' argument types)
+        self.shifted = 64 * (self.key_base + self.whole_min // 60) + self.whole_min % 60 + 4 if self.within_hour else self.key_base[:0]
 
     def keys(self, delay_min: np.ndarray) -> np.ndarray:
-        if self.within_hour:
-            return (self.shifted + delay_min.take(self.flight)) >> 6
-        return self.key_base + (self.whole_min + delay_min.take(self.flight)) // 60
+        return kernels.entry_keys(self.shifted, self.key_base, self.whole_min, self.flight, delay_min, self.within_hour)
 
 
 class DCBProblem:
@@ -145,23 +146,21 @@ class DCBProblem:
         """key = sector · n_hours + ⌊(entry minute + d_i) / 60⌋ of every entry (whole-minute delays)."""
         return self._entry_arrays(idx).keys(delay_min)
 
+    def kernel_entries(self, all_entries: bool = False) -> tuple:
+        """`kernels.evaluate`'s arguments after the delays: the entries' arrays, capacity and grid."""
+        e = self._all_entries if all_entries else self.relevant_entries
+        return e.shifted, e.key_base, e.whole_min, e.flight, e.dur_min, e.within_hour, self.capacity, self.n_hours, self.n_flights
+
     def evaluate(self, delay_min: np.ndarray, all_entries: bool = False) -> Evaluation:
         """Hotspots for a delay vector; `all_entries` also counts entries that can never be in a hotspot. Without it,
         delays must lie in [0, MaxDelay]: the relevant entries are chosen for those, and their keys are computed
         for them only (a shift when MaxDelay <= 60)."""
-        e = self._all_entries if all_entries else self.relevant_entries
-        key = e.keys(delay_min)
-        if all_entries and (key % self.n_hours).max() >= self.n_hours - 1:
+        status, *arrays = kernels.evaluate(delay_min, *self.kernel_entries(all_entries), all_entries, True)
+        if status == 2:
+            raise ValueError(f"delays {delay_min.min()}..{delay_min.max()} min put entries outside the problem's {self.n_hours}-hour grid")
+        if status == 1:
             raise ValueError(f"delays of up to {delay_min.max()} min run past the problem's {self.n_hours}-hour grid")
-        counts = np.bincount(key, minlength=self.capacity.size)
-        hot = counts > self.capacity
-        entry_hot = hot[key]
-        hot_idx = entry_hot.nonzero()[0]  # ~10 % of the entries: gathering them by index beats three boolean masks
-        hot_flight = e.flight[hot_idx]
-        h = np.bincount(hot_flight, minlength=self.n_flights)  # h_i: hot entries per flight
-        # TDC_i: their minutes inside (bincount of no entries at all returns int zeros, hence the cast)
-        tdc = np.bincount(hot_flight, weights=e.dur_min[hot_idx], minlength=self.n_flights).astype(np.float64, copy=False)
-        return Evaluation(counts, hot, key, entry_hot, h, tdc, key[hot_idx], hot_flight)
+        return Evaluation(*arrays)
 
     def movers(self, delay_min: np.ndarray, ev: Evaluation) -> np.ndarray:
         """[flight] 1 if one of its hot entries is among the `demand - capacity` entries of that hotspot
@@ -179,8 +178,7 @@ class DCBProblem:
 
     def reward(self, delay_min: np.ndarray, ev: Evaluation) -> np.ndarray:
         """Eq 5.2-5.4 for every flight."""
-        congestion = np.where(ev.congested_min > 0, -AVG_DELAY_COST_EUR_PER_MIN * ev.congested_min, C_PLUS)
-        return congestion - self.delay_cost * delay_min
+        return kernels.thesis_reward(ev.congested_min, self.delay_cost, delay_min, AVG_DELAY_COST_EUR_PER_MIN, C_PLUS)
 
     def difference_reward(self, added_min: np.ndarray, before: Evaluation, after: Evaluation) -> np.ndarray:
         """D_i = G(z) - G(z_-i): what flight i's own action changed in the day's congestion and delay cost,

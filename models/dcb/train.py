@@ -4,7 +4,9 @@ Episode: all delays start at 0. Every step, each flight that is in a hotspot (h_
 MaxDelay chooses ε-greedily to add one more delay step or not; flights in no hotspot keep their
 delay (the thesis's deterministic rule). Demand, hotspots and rewards are recomputed for the new
 delays and every acting agent (or every graph edge) is updated at once. The episode ends when no
-flight can act (no hotspot left) or after MaxDelay / step steps.
+flight can act (no hotspot left) or after MaxDelay / step steps. The step's parts are numba kernels
+(models/dcb/kernels.py); MIRL with the thesis state and reward runs its whole episode as one kernel call, bit for bit
+the episode of the step-by-step loop (tests/dcb/test_compiled.py).
 
 Local state s_i = (d_i, h_i) (Eq 5.1), h_i capped at H_CAP. An abstraction level (§5.5.2) maps
 d_i to d_i // state_step (φ_L, Eq 5.11) and lets an action add `action_step` minutes:
@@ -40,9 +42,10 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from models.dcb import kernels
 from models.dcb.cmarl import CoordinatedQ
 from models.dcb.mirl import LEARNING_RATE, IndependentQ
-from models.dcb.problem import DCBProblem
+from models.dcb.problem import AVG_DELAY_COST_EUR_PER_MIN, C_PLUS, DCBProblem
 from models.dcb.readout import polish
 
 EPISODES = 15_000  # per level (thesis §5.6.2)
@@ -68,10 +71,9 @@ class Level:
     def n_states(self, max_delay: int) -> int:
         return (max_delay // self.state_step + 1) * (H_CAP + 1) * self.n_extra
 
-    def state(self, delay_min: np.ndarray, hotspots: np.ndarray, extra: np.ndarray | int = 0) -> np.ndarray:
-        d = delay_min // self.state_step if self.state_step > 1 else delay_min  # ground level: no "// 1", "* 1 + 0" every step
-        s = d * (H_CAP + 1) + np.minimum(hotspots, H_CAP)
-        return s * self.n_extra + extra if self.n_extra > 1 else s
+    def state(self, delay_min: np.ndarray, hotspots: np.ndarray, extra: np.ndarray | None = None) -> np.ndarray:
+        """s_i of every flight from d_i, h_i and (extended state) x_i."""
+        return kernels.local_state(delay_min, hotspots, delay_min[:0] if extra is None else extra, self.state_step, self.n_extra, H_CAP)
 
     def state_map(self, max_delay: int) -> np.ndarray:
         """φ: ground state index -> this level's state index."""
@@ -110,7 +112,19 @@ def epsilon(episode: int, start: float, episodes: int) -> float:
 
 def local_state(problem: DCBProblem, level: Level, delay: np.ndarray, ev) -> np.ndarray:
     """s_i = (d_i, h_i), or (d_i, h_i, x_i) with x_i = `problem.movers` for the extended state."""
-    return level.state(delay, ev.hotspots_per_flight, problem.movers(delay, ev) if level.n_extra > 1 else 0)
+    return level.state(delay, ev.hotspots_per_flight, problem.movers(delay, ev) if level.n_extra > 1 else None)
+
+
+def _independent_episode(problem: DCBProblem, learner: IndependentQ, level: Level, eps: float, rng: np.random.Generator, learn: bool,
+                         delay: np.ndarray, state: np.ndarray, ev) -> tuple[np.ndarray, int]:
+    """`run_episode` for MIRL and its hierarchical variants with the thesis state and reward: one kernel call for the
+    whole episode (`kernels.independent_episode`, ~20-30 µs per step on the full day; the loop's kernel calls part by
+    part cost ~70 µs, mostly call overhead and the numpy draws)."""
+    delay, hotspots = kernels.independent_episode(
+        rng, learner.q, delay, state, (ev.hotspots_per_flight > 0).nonzero()[0], ev.hotspots, eps, problem.max_delay_min // level.action_step,
+        level.action_step, level.state_step, learn, learner.lr, learner.gamma, problem.delay_cost, problem.kernel_entries(), H_CAP,
+        AVG_DELAY_COST_EUR_PER_MIN, C_PLUS)
+    return delay, int(hotspots)
 
 
 def run_episode(problem: DCBProblem, learner, level: Level, eps: float, rng: np.random.Generator, learn: bool = True,
@@ -119,18 +133,20 @@ def run_episode(problem: DCBProblem, learner, level: Level, eps: float, rng: np.
     delay = np.zeros(problem.n_flights, dtype=np.int64)
     ev = problem.evaluate(delay)
     state = local_state(problem, level, delay, ev)
+    # MIRL with the thesis state and reward: the same episode as the loop below, compiled whole (any other learner
+    # type, a subclass or a wrapper included, takes the loop: its values and update are called)
+    if type(learner) is IndependentQ and level.n_extra == 1 and (reward == "thesis" or not learn):
+        return _independent_episode(problem, learner, level, eps, rng, learn, delay, state, ev)
     # every flight in a hotspot acts: at step t < MaxDelay // step all delays are <= t · step, so one more step stays within MaxDelay
     for _ in range(problem.max_delay_min // level.action_step):
         agents = (ev.hotspots_per_flight > 0).nonzero()[0]  # nonzero of a bool array: ~1.5x faster than of the counts
         if agents.size == 0:
             break
         q = learner.values(state, agents, ev)
-        explore = rng.random(agents.size) < eps
-        action = np.zeros(problem.n_flights, dtype=np.int64)
-        action[agents] = np.where(explore, rng.integers(0, 2, agents.size), q[:, 1] > q[:, 0])  # greedy: ties hold, no delay without a reason
-        added = action * level.action_step
-        delay, before = delay + added, ev
-        ev = problem.evaluate(delay)
+        # both draws every step, in this order (the same seed gives the same delays as ever)
+        explore_draw, coin = rng.random(agents.size), rng.integers(0, 2, agents.size)
+        action, added, delay = kernels.act(delay, agents, q, explore_draw, coin, eps, level.action_step)
+        before, ev = ev, problem.evaluate(delay)
         next_state = local_state(problem, level, delay, ev)
         if learn:
             if reward == "thesis":

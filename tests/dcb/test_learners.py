@@ -56,11 +56,11 @@ def test_vectorised_update_equals_per_flight_loop():
         agents = np.sort(rng.choice(n, 30, replace=False))
         s, s2 = rng.integers(0, states, n), rng.integers(0, states, n)
         a, r = rng.integers(0, 2, n), rng.normal(size=n) * 100
-        if step % 2:  # as in an episode: the action values first, whose rows the update reuses
+        if step % 2:  # as in an episode: the action values first
             assert np.array_equal(vec.values(s, agents, None), loop.q[agents, s[agents]])
-        elif step % 4 == 2:  # values of other agents (same state) first: the update must not reuse their rows
+        elif step % 4 == 2:  # values of other agents (same state) first: the update must not depend on them
             vec.values(s, agents[::2], None)
-        elif step % 8 == 4:  # values of another state (same agents) first: nor these
+        elif step % 8 == 4:  # values of another state (same agents) first: nor on these
             vec.values(s2, agents, None)
         vec.update(s, a, r, s2, agents)
         loop.update_loop(s, a, r, s2, agents)

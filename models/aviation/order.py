@@ -16,5 +16,5 @@ def in_flight_order(df: pl.DataFrame) -> pl.DataFrame:
 def runs(values: pl.Series) -> tuple[np.ndarray, np.ndarray]:
     """(run id of every row, first row of every run) for the runs of equal consecutive values (e.g. a flight's rows)."""
     run = values.rle_id().to_numpy()
-    starts = np.flatnonzero(np.r_[True, run[1:] != run[:-1]]) if len(run) else np.zeros(0, dtype=np.int64)
-    return run, starts
+    # run ids count up from 0 in row order: each run's first row is a binary search away, no pass over the rows
+    return run, np.searchsorted(run, np.arange(run[-1] + 1 if len(run) else 0, dtype=run.dtype))

@@ -46,28 +46,29 @@ def resample(tracks: pl.DataFrame, dt_s: float = 20.0) -> pl.DataFrame:
     key_src = idx * stride + (t - t0)
     key_dst = owner * stride + (grid_us - t0)
 
-    searches: dict[bytes, tuple] = {}  # one binary search per distinct set of valid points, shared by columns
+    # the grid's binary search over all rows; a column with gaps derives its own from it
+    j_all = np.clip(np.searchsorted(key_src, key_dst, side="right") - 1, 0, len(key_src) - 1)
+    searches: dict[bytes, tuple] = {}  # one search per distinct set of valid points, shared by columns
 
     def search(ok: np.ndarray) -> tuple:
         """(left, right source row, offset from left, left-to-right span, gap mask) of every grid point."""
         everywhere = ok.all()
         mask_key = b"" if everywhere else np.packbits(ok).tobytes()
         if mask_key not in searches:
-            pos = None if everywhere else np.flatnonzero(ok)
-            xp = key_src if everywhere else key_src[pos]
-            j = np.clip(np.searchsorted(xp, key_dst, side="right") - 1, 0, len(xp) - 1)
-            k = np.minimum(j + 1, len(xp) - 1)
             gap = None
-            if not everywhere:
-                # outside a flight's first/last reported value there is nothing to interpolate from: leave a gap
-                lo, hi = np.full(len(ids), np.inf), np.full(len(ids), -np.inf)
-                flight = idx[pos]
-                first = np.r_[True, flight[1:] != flight[:-1]]
-                last = np.r_[first[1:], True]
-                lo[flight[first]], hi[flight[last]] = xp[first], xp[last]
-                gap = (key_dst < lo[owner]) | (key_dst > hi[owner])
-            dx, h = key_dst - xp[j], xp[k] - xp[j]
-            searches[mask_key] = (j, k, dx, h, gap) if everywhere else (pos[j], pos[k], dx, h, gap)
+            if everywhere:
+                j, k = j_all, np.minimum(j_all + 1, len(key_src) - 1)
+            else:
+                # the search among the valid rows only: the last valid row up to the one the full search found (else
+                # the first valid row), and the valid row after it; looked up for the grid points, not the rows
+                pos = np.flatnonzero(ok)
+                at = np.clip(np.searchsorted(pos, j_all, side="right") - 1, 0, len(pos) - 1)
+                j, k = pos[at], pos[np.minimum(at + 1, len(pos) - 1)]
+                # outside a flight's first/last reported value there is nothing to interpolate from: leave a gap.
+                # Before the first: j is in an earlier flight or later than the point; after the last: j is earlier
+                # and the last valid row of its flight
+                gap = (idx[j] != owner) | (key_src[j] > key_dst) | ((key_dst > key_src[j]) & ((k == j) | (idx[k] != owner)))
+            searches[mask_key] = (j, k, key_dst - key_src[j], key_src[k] - key_src[j], gap)
         return searches[mask_key]
 
     def interp(values: np.ndarray, turn: float | None = None) -> np.ndarray:

@@ -109,3 +109,41 @@ def test_resample_is_vectorised_over_flights(cleaned):
     both = resample(pl.concat([tracks, shifted]))
     alone = resample(tracks)
     np.testing.assert_allclose(both.filter(~pl.col("flight_id").str.ends_with("_copy"))["lat"].to_numpy(), alone["lat"].to_numpy())
+
+
+def test_resample_with_missing_values_equals_np_interp_per_flight():
+    """A column with missing values (leading, trailing, inside, all of a flight, all but one) interpolates each
+    flight's valid values with np.interp and leaves gaps outside the first/last valid one (altitude: the rates
+    would be derived from the positions where missing)."""
+    rng = np.random.default_rng(4)
+    frames = []
+    for f in range(40):
+        n = int(rng.integers(1, 60))
+        t = np.sort(rng.choice(np.arange(0, 3_000), n, replace=False)) * 1_000_000 + f * 1_000_000_000
+        v = rng.normal(100.0, 20.0, n)
+        kind = f % 5
+        if kind == 1:
+            v[: n // 3] = np.nan
+        elif kind == 2:
+            v[n - n // 3 :] = np.nan
+        elif kind == 3:
+            v[rng.random(n) < 0.5] = np.nan
+        elif kind == 4:
+            v[:] = np.nan
+            v[rng.integers(0, n)] = 1.0 if f % 10 == 4 else np.nan
+        frames.append(pl.DataFrame({"flight_id": f"f{f:02d}", "ts": pl.Series(t).cast(pl.Datetime("us", "UTC")), "v": v}))
+    tracks = pl.concat(frames).with_columns(
+        lat=pl.lit(54.0), lon=pl.lit(20.0), alt_m=pl.col("v"), groundspeed_mps=pl.lit(200.0), track_deg=pl.lit(90.0),
+        vertical_rate_mps=pl.lit(0.0),
+    )
+    grid = resample(tracks.drop("v"), dt_s=20.0)
+    for (fid,), g in grid.group_by("flight_id"):
+        src = tracks.filter(pl.col("flight_id") == fid)
+        t, v = src["ts"].dt.epoch("us").to_numpy().astype(float), src["v"].to_numpy()
+        x = g["ts"].dt.epoch("us").to_numpy().astype(float)
+        ok = ~np.isnan(v)
+        want = np.full(len(x), np.nan)
+        if ok.any():
+            want = np.interp(x, t[ok], v[ok])
+            want[(x < t[ok][0]) | (x > t[ok][-1])] = np.nan
+        np.testing.assert_array_equal(g["alt_m"].to_numpy(), want)

@@ -471,7 +471,8 @@ def clean(raw: pl.DataFrame, source: str, cfg: IngestConfig = IngestConfig()) ->
     callsign = raw["callsign"].gather(callsign_row.gather(final))
     if callsign.null_count():  # a flight without a callsign keeps its icao24 as one: downstream keys are never null
         callsign = callsign.fill_null(tracks["icao24"])
-    tracks = tracks.with_columns(flight_id=flights["flight_id"].gather(np.repeat(order, points[order])), callsign=callsign).select(
+    flight_id = flights["flight_id"].gather(np.repeat(order, points[order])).set_sorted()  # flagged: checks downstream are free
+    tracks = tracks.with_columns(flight_id=flight_id, callsign=callsign).select(
         "flight_id", "ts", "icao24", "callsign", "lat", "lon", "alt_m", "groundspeed_mps", "track_deg", "vertical_rate_mps"
     )
     # rejects in row order: the positions of the nonzero reasons are already sorted

@@ -5,12 +5,15 @@ import polars as pl
 
 
 def in_flight_order(df: pl.DataFrame) -> pl.DataFrame:
-    """`df` sorted by (flight_id, ts). The pipeline's frames arrive sorted, and checking costs a third of a sort."""
-    fid = pl.col("flight_id")
-    ordered = df["flight_id"].is_sorted() and df.select(
-        ((pl.col("ts").diff() > pl.duration(microseconds=0)) | (fid != fid.shift(1))).all()
-    ).item()
-    return df if ordered else df.sort("flight_id", "ts")
+    """`df` sorted by (flight_id, ts). The pipeline's frames arrive sorted, with flight_id flagged as sorted (which
+    makes its check free); checking costs a fraction of a sort."""
+    fid = df["flight_id"]
+    if not fid.is_sorted():
+        return df.sort("flight_id", "ts")
+    # within a flight ts increases, so a row not later than the one before it must start a new flight: compare
+    # the names there only, not on every row
+    back = df.select(pl.arg_where(pl.col("ts").diff() <= pl.duration(microseconds=0))).to_series()
+    return df if (fid.gather(back) != fid.gather(back - 1)).all() else df.sort("flight_id", "ts")
 
 
 def runs(values: pl.Series) -> tuple[np.ndarray, np.ndarray]:

@@ -90,7 +90,7 @@ def resample(tracks: pl.DataFrame, dt_s: float = 20.0) -> pl.DataFrame:
     col = lambda c: src[c].cast(pl.Float64).fill_null(np.nan).to_numpy()  # noqa: E731
     out = pl.DataFrame(
         {
-            "flight_id": ids.gather(owner),
+            "flight_id": ids.gather(owner).set_sorted(),  # in order: flagged, so that checks downstream are free
             "ts": pl.Series(grid_us).cast(pl.Datetime("us", "UTC")),
             "lat": interp(col("lat")),
             # across the antimeridian (179 -> -179) the shorter arc is the one the aircraft flew

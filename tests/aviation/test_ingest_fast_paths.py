@@ -5,6 +5,7 @@ import numpy as np
 import polars as pl
 
 from models.aviation.airports import flights_table
+from models.aviation.order import in_flight_order
 from models.aviation.ingest import SpeedSpike, _aircraft_time_order, _tidy_names, ingest
 
 
@@ -126,3 +127,16 @@ def test_flights_table_end_points_equal_a_group_by(opensky_small):
     )
     assert got.select(want.columns).equals(want.sort("flight_id"))
     assert set(got.filter(pl.col("flight_id").str.ends_with("_x"))["n_points"]) == {5}
+
+
+def test_in_flight_order_sorts_exactly_when_needed():
+    ts = pl.Series([0, 5, 9, 1, 2, 3], dtype=pl.Int64).cast(pl.Datetime("us", "UTC"))
+    ordered = pl.DataFrame({"flight_id": ["a", "a", "a", "b", "b", "b"], "ts": ts, "x": range(6)})
+    assert in_flight_order(ordered) is ordered  # a later flight may start earlier in time
+    for broken in (
+        ordered.with_columns(ts=ts.gather([1, 0, 2, 3, 4, 5])),  # time runs back within a flight
+        ordered.with_columns(ts=ts.gather([0, 0, 2, 3, 4, 5])),  # a repeated time
+        ordered.with_columns(flight_id=pl.Series(["b", "b", "b", "a", "a", "a"])),  # flights out of order
+    ):
+        assert in_flight_order(broken).equals(broken.sort("flight_id", "ts"))
+        assert in_flight_order(broken) is not broken

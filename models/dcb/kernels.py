@@ -152,3 +152,144 @@ def independent_episode(rng, q, delay, state, agents, hotspots, eps, n_steps, ac
             q_update(q, state, action, thesis_reward(tdc, delay_cost, delay, cost_per_min, c_plus), next_state, agents, lr, gamma)
         state, agents, hotspots = next_state, (h > 0).nonzero()[0], hot.sum()
     return delay, hotspots
+
+
+@_jit
+def peer_graph(hot_key, hot_flight, n_flights):
+    """`cmarl.peer_edges`: the unique pairs i < j of flights with a hot entry in the same hotspot, in increasing order
+    of i·n + j, and every flight's degree |N(A_i)| -> (edges [2, E]: i, j; degree). Flight by flight in increasing
+    order, its later peers collected once each (a stamp per peer) and sorted: no sort of all the pairs."""
+    code = np.sort(hot_key * n_flights + hot_flight)  # hot entries by hotspot, then by flight
+    flight, end = code % n_flights, np.empty(code.size, dtype=np.int64)  # end: one past the entry's hotspot's last entry
+    for e in range(code.size - 1, -1, -1):
+        end[e] = e + 1 if e == code.size - 1 or code[e + 1] // n_flights != code[e] // n_flights else end[e + 1]
+    first = np.zeros(n_flights + 1, dtype=np.int64)  # the entries flight by flight (a counting sort)
+    for e in range(code.size):
+        first[flight[e] + 1] += 1
+    first = np.cumsum(first)
+    by_flight, filled = np.empty(code.size, dtype=np.int64), first[:-1].copy()
+    for e in range(code.size):
+        by_flight[filled[flight[e]]] = e
+        filled[flight[e]] += 1
+    stamp, peers = np.full(n_flights, -1), np.empty(n_flights, dtype=np.int64)
+    edges, n_edges, degree = np.empty((2, 16), dtype=np.int64), 0, np.zeros(n_flights, dtype=np.int64)
+    k = 0
+    while k < by_flight.size:
+        i, n_peers = flight[by_flight[k]], 0
+        while k < by_flight.size and flight[by_flight[k]] == i:
+            for e in range(by_flight[k] + 1, end[by_flight[k]]):  # the later entries of its hotspot: flights >= i
+                j = flight[e]
+                if j != i and stamp[j] != i:  # j == i: a flight entering one hotspot twice
+                    stamp[j] = i
+                    peers[n_peers] = j
+                    n_peers += 1
+            k += 1
+        for m in range(1, n_peers):  # insertion sort: a flight has a few dozen peers at most
+            j, at = peers[m], m
+            while at > 0 and peers[at - 1] > j:
+                peers[at] = peers[at - 1]
+                at -= 1
+            peers[at] = j
+        if n_edges + n_peers > edges.shape[1]:
+            edges = np.concatenate((edges[:, :n_edges], np.empty((2, max(edges.shape[1], n_peers)), dtype=np.int64)), axis=1)
+        for m in range(n_peers):
+            edges[0, n_edges], edges[1, n_edges] = i, peers[m]
+            n_edges += 1
+            degree[i] += 1
+            degree[peers[m]] += 1
+    return edges[:, :n_edges], degree
+
+
+@_jit
+def joint_q(tables, state_map, level_states, edges, n_flights, state, golden, table_bits):
+    """`CoordinatedQ`'s lookup of Q_ij(s_ij, ·) on every edge: for each table level l (stacked in `tables`, 2^table_bits
+    rows each), row = (key·golden mod 2^64) >> (64 - table_bits) of key = ((i·n + j)·S_l + φ_l(s_i))·S_l + φ_l(s_j),
+    in uint64 (wrapping as numpy's) -> (the edges' rows in level 0, the one that learns; Q_ij summed over the levels in
+    float64, level 0 first, [edge, joint action 2·a_i + a_j])."""
+    n_edges = edges.shape[1]
+    level_rows = np.empty((level_states.size, n_edges), dtype=np.int64)
+    shift = np.uint64(64 - table_bits)
+    for lv in range(level_states.size):  # the rows first, then the reads: these are cache misses, many in flight at once
+        n_states = np.uint64(level_states[lv])
+        for e in range(n_edges):
+            i, j = edges[0, e], edges[1, e]
+            key = (np.uint64(i * n_flights + j) * n_states + np.uint64(state_map[lv, state[i]])) * n_states + np.uint64(state_map[lv, state[j]])
+            level_rows[lv, e] = np.int64((key * golden) >> shift) + (lv << table_bits)
+    q = np.empty((n_edges, 4))
+    for e in range(n_edges):
+        for a in range(4):
+            q[e, a] = np.float64(tables[level_rows[0, e], a])
+    for lv in range(1, level_states.size):
+        for e in range(n_edges):
+            for a in range(4):
+                q[e, a] += np.float64(tables[level_rows[lv, e], a])
+    rows = level_rows[0]
+    return rows, q
+
+
+@_jit(inline="always")
+def _maximum(a, b):
+    """np.maximum of two numbers."""
+    return a if a >= b else b
+
+
+@_jit
+def coordinated_values(q, edges, n_flights, agents):
+    """Eq 5.9 (`CoordinatedQ.values`): Q_i(s_i, a_i) = ½ Σ_j max_{a_j} Q_ij of the agents from their edges' Q_ij (q) -> [agents, 2].
+    The sums run in edge order per flight and side (i end, j end), as the np.bincount they replaced."""
+    sums = np.zeros((2, 2, n_flights))  # [a, side, flight]
+    for e in range(edges.shape[1]):
+        i, j = edges[0, e], edges[1, e]
+        sums[0, 0, i] += _maximum(q[e, 0], q[e, 1])  # seen from i, a_i = 0: max over a_j
+        sums[1, 0, i] += _maximum(q[e, 2], q[e, 3])
+        sums[0, 1, j] += _maximum(q[e, 0], q[e, 2])  # seen from j, a_j = 0: max over a_i
+        sums[1, 1, j] += _maximum(q[e, 1], q[e, 3])
+    out = np.empty((agents.size, 2))
+    for k in range(agents.size):
+        for a in range(2):
+            out[k, a] = 0.5 * (sums[a, 0, agents[k]] + sums[a, 1, agents[k]])
+    return out
+
+
+@_jit
+def coordinated_update(tables, state_map, level_states, edges, degree, n_flights, rows, q, action, reward, next_state, lr, gamma,
+                       golden, table_bits):
+    """Eq 5.7 (`CoordinatedQ.update`) on every edge, in place in level 0 of `tables`: rows and q are the edges' `joint_q`
+    at the state the actions were chosen in. All targets are read before any row is written, then the float32 rows
+    are updated in edge order (two edges can share a hashed row), as np.add.at did."""
+    _, q_next = joint_q(tables, state_map, level_states, edges, n_flights, next_state, golden, table_bits)
+    step = np.empty(edges.shape[1], dtype=np.float32)
+    for e in range(step.size):
+        i, j = edges[0, e], edges[1, e]
+        best = _maximum(_maximum(_maximum(q_next[e, 0], q_next[e, 1]), q_next[e, 2]), q_next[e, 3])
+        target = reward[i] / degree[i] + reward[j] / degree[j] + gamma * best
+        step[e] = np.float32(lr * (target - q[e, 2 * action[i] + action[j]]))
+    for e in range(step.size):
+        tables[rows[e], 2 * action[edges[0, e]] + action[edges[1, e]]] += step[e]
+
+
+@_jit
+def coordinated_episode(rng, tables, state_map, level_states, golden, table_bits, delay, state, agents, hot_key, hot_flight, hotspots, eps,
+                        n_steps, action_step, state_step, learn, lr, gamma, delay_cost, entries, h_cap, cost_per_min, c_plus):
+    """`train.run_episode` for CMARL and HCMARL (CoordinatedQ) with the thesis state and reward, as `independent_episode`
+    for MIRL: the peer graph of the step's hot entries (kept while they stay the same), Eq 5.9, the draws and the
+    ε-greedy choice, the evaluation, Eq 5.7 -> (delays, hotspots). hot_key, hot_flight: the hot entries at the start."""
+    n_flights = entries[-1]
+    signature, (edges, degree) = hot_key[:0], peer_graph(hot_key[:0], hot_flight[:0], n_flights)
+    for _ in range(n_steps):
+        if agents.size == 0:
+            break
+        codes = hot_key * n_flights + hot_flight
+        if codes.size != signature.size or (codes != signature).any():
+            signature, (edges, degree) = codes, peer_graph(hot_key, hot_flight, n_flights)
+        rows, q = joint_q(tables, state_map, level_states, edges, n_flights, state, golden, table_bits)
+        values = coordinated_values(q, edges, n_flights, agents)
+        explore_draw, coin = rng.random(agents.size), rng.integers(0, 2, agents.size)
+        action, _, delay = act(delay, agents, values, explore_draw, coin, eps, action_step)
+        _, _, hot, _, _, h, tdc, hot_key, hot_flight = evaluate(delay, *entries, False, True)
+        next_state = local_state(delay, h, delay[:0], state_step, 1, h_cap)
+        if learn:
+            coordinated_update(tables, state_map, level_states, edges, degree, n_flights, rows, q, action,
+                               thesis_reward(tdc, delay_cost, delay, cost_per_min, c_plus), next_state, lr, gamma, golden, table_bits)
+        state, agents, hotspots = next_state, (h > 0).nonzero()[0], hot.sum()
+    return delay, hotspots

@@ -43,7 +43,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from models.dcb import kernels
-from models.dcb.cmarl import CoordinatedQ
+from models.dcb.cmarl import GOLDEN, TABLE_BITS, CoordinatedQ
 from models.dcb.mirl import LEARNING_RATE, IndependentQ
 from models.dcb.problem import AVG_DELAY_COST_EUR_PER_MIN, C_PLUS, DCBProblem
 from models.dcb.readout import polish
@@ -127,16 +127,28 @@ def _independent_episode(problem: DCBProblem, learner: IndependentQ, level: Leve
     return delay, int(hotspots)
 
 
+def _coordinated_episode(problem: DCBProblem, learner: CoordinatedQ, level: Level, eps: float, rng: np.random.Generator, learn: bool,
+                         delay: np.ndarray, state: np.ndarray, ev) -> tuple[np.ndarray, int]:
+    """`run_episode` for CMARL and HCMARL with the thesis state and reward: one kernel call for the whole episode
+    (`kernels.coordinated_episode`)."""
+    delay, hotspots = kernels.coordinated_episode(
+        rng, learner._tables, *learner.hashing, GOLDEN, TABLE_BITS, delay, state, (ev.hotspots_per_flight > 0).nonzero()[0], ev.hot_key,
+        ev.hot_flight, ev.hotspots, eps, problem.max_delay_min // level.action_step, level.action_step, level.state_step, learn, learner.lr,
+        learner.gamma, problem.delay_cost, problem.kernel_entries(), H_CAP, AVG_DELAY_COST_EUR_PER_MIN, C_PLUS)
+    return delay, int(hotspots)
+
+
 def run_episode(problem: DCBProblem, learner, level: Level, eps: float, rng: np.random.Generator, learn: bool = True,
                 reward: str = "thesis") -> tuple[np.ndarray, int]:
     """One episode from zero delays; returns the final delays [min] and the hotspots they leave."""
     delay = np.zeros(problem.n_flights, dtype=np.int64)
     ev = problem.evaluate(delay)
     state = local_state(problem, level, delay, ev)
-    # MIRL with the thesis state and reward: the same episode as the loop below, compiled whole (any other learner
-    # type, a subclass or a wrapper included, takes the loop: its values and update are called)
-    if type(learner) is IndependentQ and level.n_extra == 1 and (reward == "thesis" or not learn):
-        return _independent_episode(problem, learner, level, eps, rng, learn, delay, state, ev)
+    # MIRL, CMARL with the thesis state and reward: the same episode as the loop below, compiled whole (any other
+    # learner type, a subclass or a wrapper included, takes the loop: its values and update are called)
+    compiled = {IndependentQ: _independent_episode, CoordinatedQ: _coordinated_episode}.get(type(learner))
+    if compiled is not None and level.n_extra == 1 and (reward == "thesis" or not learn):
+        return compiled(problem, learner, level, eps, rng, learn, delay, state, ev)
     # every flight in a hotspot acts: at step t < MaxDelay // step all delays are <= t · step, so one more step stays within MaxDelay
     for _ in range(problem.max_delay_min // level.action_step):
         agents = (ev.hotspots_per_flight > 0).nonzero()[0]  # nonzero of a bool array: ~1.5x faster than of the counts

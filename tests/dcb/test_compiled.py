@@ -1,5 +1,5 @@
-"""The numba kernels of the learners' step (issue 5: MIRL's compiled episode) give what the step made of separate calls
-gives, bit for bit; the per-flight baseline (tests/dcb/test_learners.py) and the former numpy evaluation
+"""The numba kernels of the learners' step (issue 5: MIRL's compiled episode; CMARL's and HCMARL's) give what the step
+made of separate calls gives, bit for bit; the per-flight baseline (tests/dcb/test_learners.py) and the former numpy evaluation
 (tests/dcb/test_fast_paths.py) check the same kernels against implementations of their own."""
 
 import numpy as np
@@ -7,6 +7,7 @@ import pytest
 from numba import njit
 
 from models.dcb import kernels
+from models.dcb.cmarl import CoordinatedQ
 from models.dcb.mirl import IndependentQ
 from models.dcb.train import ABSTRACT_STEP_MIN, GROUND, Level, run_episode
 
@@ -44,6 +45,30 @@ def test_compiled_episode_equals_the_step_by_step_episode(small_case, level):
         d_called, hot_called = run_episode(p, called, level, eps, rng_called, learn=learn)
         assert np.array_equal(d, d_called) and hot == hot_called and isinstance(hot, int)
     assert np.array_equal(compiled.q, called.q) and np.abs(compiled.q).sum() > 0 and d.sum() > 0
+    assert rng_compiled.bit_generator.state == rng_called.bit_generator.state
+
+
+class CalledCoordinatedQ(CoordinatedQ):
+    """CoordinatedQ by any other type: `run_episode` calls its values and update at every step."""
+
+    def transferred(self, n_states, state_map):
+        return CalledCoordinatedQ(self.n_flights, n_states, prior=self, state_map=state_map, lr=self.lr, gamma=self.gamma)
+
+
+def test_compiled_coordinated_episode_equals_the_step_by_step_episode(small_case):
+    """CMARL's compiled episode, at HCMARL's abstract level and at the ground level transferred from it (two stacked
+    tables): same delays, hotspots, hashed tables and generator state as the episode that calls values and update."""
+    p, abstract = small_case, Level(ABSTRACT_STEP_MIN, ABSTRACT_STEP_MIN)
+    compiled, called = (cls(p.n_flights, abstract.n_states(p.max_delay_min), lr=0.1) for cls in (CoordinatedQ, CalledCoordinatedQ))
+    rng_compiled, rng_called = np.random.default_rng(3), np.random.default_rng(3)
+    for level in (abstract, GROUND):
+        if level is GROUND:
+            compiled, called = (q.transferred(GROUND.n_states(p.max_delay_min), abstract.state_map(p.max_delay_min)) for q in (compiled, called))
+        for eps, learn in ((0.9, True), (0.7, True), (0.3, True), (0.0, False)):
+            d, hot = run_episode(p, compiled, level, eps, rng_compiled, learn=learn)
+            d_called, hot_called = run_episode(p, called, level, eps, rng_called, learn=learn)
+            assert np.array_equal(d, d_called) and hot == hot_called and isinstance(hot, int)
+        assert np.array_equal(compiled._tables, called._tables) and np.count_nonzero(compiled.table) > 0 and d.sum() > 0
     assert rng_compiled.bit_generator.state == rng_called.bit_generator.state
 
 

@@ -2,8 +2,7 @@
 
 `evaluate` (integer keys, entry arrays gathered once, per-flight sums over hot entries only) against
 the former full evaluation (float keys, weighted sums over every entry), and its keys within the hour (a
-shift) against the integer division; `peer_edges` (sort-based unique) against np.unique; `row_max` against
-max(axis=1); and whole training runs against delays recorded with the code before the speed-ups (same seed -> same delays, bit for bit): RECORDED before
+shift) against the integer division; `peer_edges` (now a kernel) against np.unique; and whole training runs against delays recorded with the code before the speed-ups (same seed -> same delays, bit for bit): RECORDED before
 the first speed-ups (docs/history/dcb.md, first round), RECORDED_CMARL before CoordinatedQ's split hash, stacked tables and graph reuse.
 """
 
@@ -11,7 +10,7 @@ import numpy as np
 import polars as pl
 import pytest
 
-from models.dcb.cmarl import peer_edges, row_max
+from models.dcb.cmarl import peer_edges
 from models.dcb.experiment import build_problem
 from models.dcb.train import train
 
@@ -71,11 +70,6 @@ def test_relevant_keys_equal_the_integer_division_at_every_admissible_delay(swis
     for d in range(max_delay + 1):
         keys = e.keys(np.full(p.n_flights, d))
         assert keys.dtype == np.int64 and np.array_equal(keys, e.key_base + (e.whole_min + d) // 60)
-
-
-def test_row_max_equals_max_over_columns():
-    q = np.random.default_rng(1).normal(size=(500, 4))
-    assert np.array_equal(row_max(q), q.max(axis=1)) and np.array_equal(row_max(q[:, :2]), q[:, :2].max(axis=1))
 
 
 # (total delay, Σ delay_i · (i + 1), source) of train(small_case, method, seed=1, episodes=20), recorded

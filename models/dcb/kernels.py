@@ -2,12 +2,13 @@
 
 The numpy step was ~55 calls on arrays of a few hundred to a few thousand elements, whose per-call overhead (1.5-3 µs)
 was most of its cost; a kernel makes one pass where numpy made several calls. Each computation has one implementation,
-here: `DCBProblem.evaluate` and `reward`, `Level.state`, `IndependentQ.values` and `update` and the ε-greedy choice of
-`train.run_episode` call these kernels, and `independent_episode`, MIRL's whole episode (thesis state and reward) in
-one call, is made of the same kernels. Results are bit for bit those of the numpy code they replaced: the same
+here: `DCBProblem.evaluate` and `reward`, `Level.state`, `IndependentQ.values` and `update`, `CoordinatedQ`'s peer graph,
+lookup, values (Eq 5.9) and update (Eq 5.7) and the ε-greedy choice of `train.run_episode` call these kernels, and
+`independent_episode` and `coordinated_episode`, MIRL's and CMARL's whole episode (thesis state and reward) in one
+call, are made of the same kernels. Results are bit for bit those of the numpy code they replaced: the same
 operations in the same order (sums in entry order, as np.bincount's), the same random numbers (tests/dcb/test_compiled.py).
 
-Compiling them all takes ~9-16 s on 2 cores, once: numba caches the machine code in __pycache__ beside this file (git-ignored),
+Compiling them all takes ~19 s on 2 cores (~9-16 s before CoordinatedQ's kernels), once: numba caches the machine code in __pycache__ beside this file (git-ignored),
 or where that is not writable in NUMBA_CACHE_DIR or numba's user-wide cache directory (~/.cache/numba); where none
 is writable, every process compiles again (numba would refuse to define a cached function at all, hence `_jit`).
 The cache of a function is invalidated only by a change of its own file: so all kernels live in this one module,
@@ -223,8 +224,7 @@ def joint_q(tables, state_map, level_states, edges, n_flights, state, golden, ta
         for e in range(n_edges):
             for a in range(4):
                 q[e, a] += np.float64(tables[level_rows[lv, e], a])
-    rows = level_rows[0]
-    return rows, q
+    return level_rows[0], q
 
 
 @_jit(inline="always")
@@ -275,7 +275,7 @@ def coordinated_episode(rng, tables, state_map, level_states, golden, table_bits
     for MIRL: the peer graph of the step's hot entries (kept while they stay the same), Eq 5.9, the draws and the
     ε-greedy choice, the evaluation, Eq 5.7 -> (delays, hotspots). hot_key, hot_flight: the hot entries at the start."""
     n_flights = entries[-1]
-    signature, (edges, degree) = hot_key[:0], peer_graph(hot_key[:0], hot_flight[:0], n_flights)
+    signature, (edges, degree) = hot_key[:0], peer_graph(hot_key[:0], hot_flight[:0], n_flights)  # none yet (typed as the loop's)
     for _ in range(n_steps):
         if agents.size == 0:
             break

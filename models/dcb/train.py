@@ -5,8 +5,8 @@ MaxDelay chooses ε-greedily to add one more delay step or not; flights in no ho
 delay (the thesis's deterministic rule). Demand, hotspots and rewards are recomputed for the new
 delays and every acting agent (or every graph edge) is updated at once. The episode ends when no
 flight can act (no hotspot left) or after MaxDelay / step steps. The step's parts are numba kernels
-(models/dcb/kernels.py); MIRL with the thesis state and reward runs its whole episode as one kernel call, bit for bit
-the episode of the step-by-step loop (tests/dcb/test_compiled.py).
+(models/dcb/kernels.py); MIRL, CMARL and their hierarchical variants with the thesis state and reward run their whole
+episode as one kernel call, bit for bit the episode of the step-by-step loop (tests/dcb/test_compiled.py).
 
 Local state s_i = (d_i, h_i) (Eq 5.1), h_i capped at H_CAP. An abstraction level (§5.5.2) maps
 d_i to d_i // state_step (φ_L, Eq 5.11) and lets an action add `action_step` minutes:
@@ -132,7 +132,7 @@ def _coordinated_episode(problem: DCBProblem, learner: CoordinatedQ, level: Leve
     """`run_episode` for CMARL and HCMARL with the thesis state and reward: one kernel call for the whole episode
     (`kernels.coordinated_episode`)."""
     delay, hotspots = kernels.coordinated_episode(
-        rng, learner._tables, *learner.hashing, GOLDEN, TABLE_BITS, delay, state, (ev.hotspots_per_flight > 0).nonzero()[0], ev.hot_key,
+        rng, *learner.lookup, GOLDEN, TABLE_BITS, delay, state, (ev.hotspots_per_flight > 0).nonzero()[0], ev.hot_key,
         ev.hot_flight, ev.hotspots, eps, problem.max_delay_min // level.action_step, level.action_step, level.state_step, learn, learner.lr,
         learner.gamma, problem.delay_cost, problem.kernel_entries(), H_CAP, AVG_DELAY_COST_EUR_PER_MIN, C_PLUS)
     return delay, int(hotspots)

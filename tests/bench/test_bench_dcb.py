@@ -96,7 +96,8 @@ class Timed:
 
 def _episodes_per_s(run, learner, n: int, timed: bool = True) -> tuple[float, np.ndarray, float]:
     """`run(learner, eps, rng)` n times -> (episodes/s of the whole step, final delays, learner-only seconds per episode).
-    timed=False runs the learner itself: `run_episode` then takes MIRL's compiled episode (one kernel, no learner calls to time)."""
+    timed=False runs the learner itself: `run_episode` then takes MIRL's or CMARL's compiled episode (one kernel, no learner calls
+    to time)."""
     rng, learner = np.random.default_rng(0), Timed(learner) if timed else learner
     t = time.perf_counter()
     for _ in range(n):
@@ -114,7 +115,9 @@ def test_vectorised_vs_loop(cap95, bench_results, method, n_vec, n_loop):
     b.warn_if_busy(f"DCB {method} vectorised vs loop")
     d_vec = _episodes_per_s(vectorised, make_vec(cap95.n_flights, n_states), n_loop, timed=False)[1]  # also the warm-up
     vec = _episodes_per_s(vectorised, make_vec(cap95.n_flights, n_states), n_vec, timed=False)[0]
-    # the learner's own share, timed in the step that calls it (MIRL: not the compiled episode, which has no learner calls)
+    # the learner's own share, timed in the step that calls it (not the compiled episode, which has no learner calls);
+    # that step's kernels are loaded from numba's cache (or compiled) at their first call: an untimed episode first
+    _episodes_per_s(vectorised, make_vec(cap95.n_flights, n_states), 1)
     called, d_called, vec_learner_s = _episodes_per_s(vectorised, make_vec(cap95.n_flights, n_states), n_loop)
     # the timed baselines run the same seeded episodes as d_vec's: their last delays must be d_vec
     loop, d_loop, loop_learner_s = _episodes_per_s(vectorised, make_loop(cap95.n_flights, n_states), n_loop)

@@ -23,6 +23,14 @@ class IndependentQ:
         self.q = np.zeros((n_flights, n_states, 2)) if prior is None else prior.copy()
         self.lr, self.gamma = lr, gamma
 
+    @property
+    def n_flights(self) -> int:
+        return self.q.shape[0]
+
+    @property
+    def n_states(self) -> int:
+        return self.q.shape[1]
+
     def values(self, state: np.ndarray, agents: np.ndarray, ev) -> np.ndarray:
         """Q_i(s_i, ·) of the acting agents -> [agents, 2]."""
         return kernels.q_values(self.q, state, agents)

@@ -147,17 +147,21 @@ class DCBProblem:
         return self._entry_arrays(idx).keys(delay_min)
 
     def kernel_entries(self, all_entries: bool = False) -> tuple:
-        """`kernels.evaluate`'s arguments after the delays: the entries' arrays, capacity and grid."""
-        e = self._all_entries if all_entries else self.relevant_entries
-        return e.shifted, e.key_base, e.whole_min, e.flight, e.dur_min, e.within_hour, self.capacity, self.n_hours, self.n_flights
+        """`kernels.evaluate`'s arguments after the delays: the entries' arrays, capacity, grid and the largest delay they
+        serve (all entries: any delay that keeps them on the grid)."""
+        e, max_delay = (self._all_entries, 60 * self.n_hours) if all_entries else (self.relevant_entries, self.max_delay_min)
+        return e.shifted, e.key_base, e.whole_min, e.flight, e.dur_min, e.within_hour, self.capacity, self.n_hours, self.n_flights, max_delay
 
     def evaluate(self, delay_min: np.ndarray, all_entries: bool = False) -> Evaluation:
         """Hotspots for a delay vector; `all_entries` also counts entries that can never be in a hotspot. Without it,
         delays must lie in [0, MaxDelay]: the relevant entries are chosen for those, and their keys are computed
-        for them only (a shift when MaxDelay <= 60)."""
+        for them only (a shift when MaxDelay <= 60). One line for delays outside that range, or with all_entries for an
+        entry that would reach the grid's spare last hour or leave its sector's hours."""
         status, *arrays = kernels.evaluate(delay_min, *self.kernel_entries(all_entries), all_entries, True)
         if status == 2:
-            raise ValueError(f"delays {delay_min.min()}..{delay_min.max()} min put entries outside the problem's {self.n_hours}-hour grid")
+            limit = (f"the problem's {self.n_hours}-hour grid" if all_entries
+                     else f"[0, MaxDelay {self.max_delay_min}] min, the range the learners' evaluation is made for")
+            raise ValueError(f"delays {delay_min.min()}..{delay_min.max()} min: outside {limit}")
         if status == 1:
             raise ValueError(f"delays of up to {delay_min.max()} min run past the problem's {self.n_hours}-hour grid")
         return Evaluation(*arrays)

@@ -141,6 +141,11 @@ def _coordinated_episode(problem: DCBProblem, learner: CoordinatedQ, level: Leve
 def run_episode(problem: DCBProblem, learner, level: Level, eps: float, rng: np.random.Generator, learn: bool = True,
                 reward: str = "thesis") -> tuple[np.ndarray, int]:
     """One episode from zero delays; returns the final delays [min] and the hotspots they leave."""
+    n_states = level.n_states(problem.max_delay_min)
+    if isinstance(learner, IndependentQ | CoordinatedQ) and (learner.n_flights != problem.n_flights or learner.n_states < n_states):
+        # the kernels index by flight and state unchecked (numba has no bounds check): a short table would be read and written past its rows
+        raise ValueError(f"Q table of {learner.n_flights} flights × {learner.n_states} states: this problem and level need "
+                         f"{problem.n_flights} × {n_states}")
     delay = np.zeros(problem.n_flights, dtype=np.int64)
     ev = problem.evaluate(delay)
     state = local_state(problem, level, delay, ev)

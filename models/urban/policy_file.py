@@ -43,7 +43,7 @@ def load_policy(path: str | Path) -> dict:
         raise PolicyFileError(f"policy file {path}: not an urban policy file ({type(exc).__name__})") from None
     if isinstance(blob, dict) and blob.get("format", FORMAT) != FORMAT:  # untagged: the first version
         raise PolicyFileError(f"policy file {path}: format {blob['format']!r}, this trafficlearn reads {FORMAT}")
-    if not isinstance(blob, dict) or not {"params", "agents"} <= blob.keys():
+    if not isinstance(blob, dict) or not {"params", "agents"} <= blob.keys() or not isinstance(blob["params"], dict):
         raise PolicyFileError(f"policy file {path}: not an urban policy file (no route agents and weights)")
     return {**blob, "params": {k: np.asarray(v) for k, v in blob["params"].items()}, "leader_guard": blob.get("leader_guard", False)}
 

@@ -147,3 +147,18 @@ def test_resample_with_missing_values_equals_np_interp_per_flight():
             want = np.interp(x, t[ok], v[ok])
             want[(x < t[ok][0]) | (x > t[ok][-1])] = np.nan
         np.testing.assert_array_equal(g["alt_m"].to_numpy(), want)
+
+
+def test_resample_leaves_gaps_outside_the_valid_values_of_the_first_and_last_flight():
+    """Before the first flight's first valid value the search among the valid rows finds a later row of the same
+    flight, and after the last flight's last valid value there is no valid row after it at all: both are gaps, not
+    extrapolations (the per-flight test above has neither case: its first flight has no missing value and its last
+    none valid)."""
+    t = pl.Series(np.arange(0, 300, 20) * 1_000_000).cast(pl.Datetime("us", "UTC"))
+    alt = [None, None, None, *np.linspace(9000.0, 9600.0, 10), None, None]
+    tracks = pl.DataFrame({"flight_id": ["a"] * 15 + ["b"] * 15, "ts": pl.concat([t, t]), "alt_m": alt[::-1] + alt}).with_columns(
+        lat=pl.lit(54.0), lon=pl.lit(20.0), groundspeed_mps=pl.lit(200.0), track_deg=pl.lit(90.0), vertical_rate_mps=pl.lit(0.0))
+    grid = resample(tracks, dt_s=20.0)
+    for fid, want in (("a", alt[::-1]), ("b", alt)):
+        got = grid.filter(pl.col("flight_id") == fid)["alt_m"].to_numpy()
+        np.testing.assert_array_equal(got, np.array(want, dtype=float))

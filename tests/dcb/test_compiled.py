@@ -75,10 +75,53 @@ def test_compiled_coordinated_episode_equals_the_step_by_step_episode(small_case
 def test_evaluate_refuses_delays_that_leave_the_grid(small_case):
     """The compiled evaluation counts into a fixed array: keys outside it are refused, not written out of bounds."""
     p = small_case
-    with pytest.raises(ValueError, match=r"^delays -100000\.\.0 min put entries outside the problem's 48-hour grid$"):
+    with pytest.raises(ValueError, match=r"^delays -100000\.\.0 min: outside \[0, MaxDelay 60\] min, the range the learners' evaluation is made for$"):
         p.evaluate(np.r_[-100_000, np.zeros(p.n_flights - 1, dtype=np.int64)])
+    with pytest.raises(ValueError, match=r"^delays -100000\.\.0 min: outside the problem's 48-hour grid$"):
+        p.evaluate(np.r_[-100_000, np.zeros(p.n_flights - 1, dtype=np.int64)], all_entries=True)
     with pytest.raises(ValueError, match=r"^delays of up to \d+ min run past the problem's 48-hour grid$"):
         p.evaluate(np.full(p.n_flights, 60 * (p.n_hours - 12)), all_entries=True)
+
+
+def _latest_entry_delays(p, hour: int) -> np.ndarray:
+    """Delays that put the day's latest entry at the start of `hour`, every other flight undelayed."""
+    e = int(np.argmax(p.entry_whole_min))
+    delay = np.zeros(p.n_flights, dtype=np.int64)
+    delay[p.entry_flight[e]] = 60 * hour - p.entry_whole_min[e]
+    return delay
+
+
+def test_evaluate_refuses_exactly_the_spare_hour(small_case):
+    """With all_entries, the grid's last hour is spare (FCFS and the optimum must stay before it): an entry in it is
+    refused, an entry one hour earlier is not."""
+    p = small_case
+    assert p.evaluate(_latest_entry_delays(p, p.n_hours - 2), all_entries=True).counts.sum() == p.entry_flight.size
+    with pytest.raises(ValueError, match="run past the problem's 48-hour grid"):
+        p.evaluate(_latest_entry_delays(p, p.n_hours - 1), all_entries=True)
+
+
+def test_evaluate_refuses_an_entry_pushed_into_another_sectors_hours(small_case):
+    """A delay of a whole grid moves an entry's key into the next sector's block at the same hour of the block (not
+    the spare hour, not outside the array): refused, not counted as the other sector's. The learners' evaluation
+    also refuses a delay past MaxDelay (its entries and the keys' shift are chosen for delays up to it), which
+    all_entries counts (FCFS delays are not capped)."""
+    p = small_case
+    f = next(f for f in np.unique(p.entry_flight[p.relevant]) if (p.entry_sector[p.entry_flight == f] < p.n_sectors - 1).all())
+    delay = np.zeros(p.n_flights, dtype=np.int64)
+    delay[f] = 60 * p.n_hours
+    with pytest.raises(ValueError, match="run past the problem's 48-hour grid"):
+        p.evaluate(delay, all_entries=True)
+    for d in (p.max_delay_min + 1, -1):  # -1: its keys would stay on the grid, only the delay itself is wrong
+        delay[f] = d
+        with pytest.raises(ValueError, match=r"outside \[0, MaxDelay 60\] min"):
+            p.evaluate(delay)
+    with pytest.raises(ValueError, match="outside the problem's 48-hour grid"):
+        p.evaluate(delay, all_entries=True)
+    delay[f] = p.max_delay_min + 1
+    assert p.evaluate(delay, all_entries=True).counts.sum() == p.entry_flight.size
+    delay[:], delay[p.entry_flight[p.entry_sector == p.n_sectors - 1][0]] = 0, 60 * p.n_hours  # the last sector: past the array
+    with pytest.raises(ValueError, match="outside the problem's 48-hour grid"):
+        p.evaluate(delay, all_entries=True)
 
 
 def test_a_kernel_compiles_where_numba_finds_no_cache_directory():
@@ -89,3 +132,34 @@ def test_a_kernel_compiles_where_numba_finds_no_cache_directory():
     with pytest.raises(RuntimeError, match="no locator"):
         njit(cache=True)(namespace["twice"])
     assert kernels._jit(namespace["twice"])(21) == 42
+
+
+def test_learners_train_with_the_compiled_episode(small_case, monkeypatch):
+    """MIRL, CMARL and their hierarchical variants with the thesis state and reward take the compiled episode at every
+    level and in the greedy roll-out; with another reward only the roll-out (no learning) does, with the extended
+    state none. Without this nothing fails when the fast path is lost: both paths give the same delays."""
+    from models.dcb import train as training
+
+    calls = []
+    for name in ("_independent_episode", "_coordinated_episode"):
+        compiled = getattr(training, name)
+        monkeypatch.setattr(training, name, lambda *args, _c=compiled, _n=name: calls.append(_n) or _c(*args))
+    independent, coordinated = "_independent_episode", "_coordinated_episode"
+    for method, options, expected in (
+        ("sHMIRL", {}, [independent] * 5), ("MIRL", {"reward": "difference"}, [independent]), ("MIRL", {"state": "extended"}, []),
+        ("CMARL", {}, [coordinated] * 3), ("HCMARL", {}, [coordinated] * 5), ("CMARL", {"reward": "overload"}, [coordinated]),
+    ):
+        calls.clear()
+        training.train(small_case, method, seed=0, episodes=2, **options)
+        assert calls == expected, (method, options)
+
+
+def test_a_q_table_too_small_for_the_problem_and_level_is_one_line(small_case):
+    """The kernels index the Q table without bounds checks: a table of fewer flights or states than the episode reaches
+    (a learner made for another problem or level) is refused before it is read or written past its rows."""
+    p, n_states = small_case, GROUND.n_states(small_case.max_delay_min)
+    for short in (IndependentQ(p.n_flights - 1, n_states), CalledQ(p.n_flights, n_states - 1), CoordinatedQ(p.n_flights + 1, n_states),
+                  CoordinatedQ(p.n_flights, n_states - 4)):
+        rows, states = short.n_flights, short.n_states
+        with pytest.raises(ValueError, match=rf"^Q table of {rows} flights × {states} states: this problem and level need 189 × {n_states}$"):
+            run_episode(p, short, GROUND, 0.5, np.random.default_rng(0))

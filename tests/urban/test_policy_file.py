@@ -68,6 +68,8 @@ def test_a_file_that_is_not_a_policy_file_is_one_line(tmp_path):
     # a torch file, but weights only (e.g. a state dict) or a tagged file that lost its route agents
     assert "not an urban policy file (no route agents" in _error(_write(tmp_path / "sd.pt", {"w1": torch.zeros(2)}))
     assert "not an urban policy file (no route agents" in _error(_write(tmp_path / "t.pt", {"format": FORMAT, "params": {}}))
+    # weights that are not a name -> tensor mapping (it raised AttributeError: 'list' object has no attribute 'items')
+    assert "not an urban policy file (no route agents" in _error(_write(tmp_path / "w.pt", {"format": FORMAT, "params": [torch.zeros(2)], "agents": []}))
     assert "not an urban policy file" in _error(_write(tmp_path / "l.pt", [torch.zeros(2)]))
 
 

@@ -115,15 +115,20 @@ def local_state(problem: DCBProblem, level: Level, delay: np.ndarray, ev) -> np.
     return level.state(delay, ev.hotspots_per_flight, problem.movers(delay, ev) if level.n_extra > 1 else None)
 
 
+def _episode_tail(problem: DCBProblem, learner, level: Level, eps: float, learn: bool) -> tuple:
+    """The compiled episodes' arguments after their learner's and the start's: ε, steps, the level, η, γ, the delay costs,
+    the entries `kernels.evaluate` reads and the reward's constants."""
+    return (eps, problem.max_delay_min // level.action_step, level.action_step, level.state_step, learn, learner.lr, learner.gamma,
+            problem.delay_cost, problem.kernel_entries(), H_CAP, AVG_DELAY_COST_EUR_PER_MIN, C_PLUS)
+
+
 def _independent_episode(problem: DCBProblem, learner: IndependentQ, level: Level, eps: float, rng: np.random.Generator, learn: bool,
                          delay: np.ndarray, state: np.ndarray, ev) -> tuple[np.ndarray, int]:
     """`run_episode` for MIRL and its hierarchical variants with the thesis state and reward: one kernel call for the
     whole episode (`kernels.independent_episode`, ~20-30 µs per step on the full day; the loop's kernel calls part by
     part cost ~70 µs, mostly call overhead and the numpy draws)."""
-    delay, hotspots = kernels.independent_episode(
-        rng, learner.q, delay, state, (ev.hotspots_per_flight > 0).nonzero()[0], ev.hotspots, eps, problem.max_delay_min // level.action_step,
-        level.action_step, level.state_step, learn, learner.lr, learner.gamma, problem.delay_cost, problem.kernel_entries(), H_CAP,
-        AVG_DELAY_COST_EUR_PER_MIN, C_PLUS)
+    delay, hotspots = kernels.independent_episode(rng, learner.q, delay, state, (ev.hotspots_per_flight > 0).nonzero()[0], ev.hotspots,
+                                                  *_episode_tail(problem, learner, level, eps, learn))
     return delay, int(hotspots)
 
 
@@ -131,10 +136,8 @@ def _coordinated_episode(problem: DCBProblem, learner: CoordinatedQ, level: Leve
                          delay: np.ndarray, state: np.ndarray, ev) -> tuple[np.ndarray, int]:
     """`run_episode` for CMARL and HCMARL with the thesis state and reward: one kernel call for the whole episode
     (`kernels.coordinated_episode`)."""
-    delay, hotspots = kernels.coordinated_episode(
-        rng, *learner.lookup, GOLDEN, TABLE_BITS, delay, state, (ev.hotspots_per_flight > 0).nonzero()[0], ev.hot_key,
-        ev.hot_flight, ev.hotspots, eps, problem.max_delay_min // level.action_step, level.action_step, level.state_step, learn, learner.lr,
-        learner.gamma, problem.delay_cost, problem.kernel_entries(), H_CAP, AVG_DELAY_COST_EUR_PER_MIN, C_PLUS)
+    delay, hotspots = kernels.coordinated_episode(rng, *learner.lookup, GOLDEN, TABLE_BITS, delay, state, (ev.hotspots_per_flight > 0).nonzero()[0],
+                                                  ev.hot_key, ev.hot_flight, ev.hotspots, *_episode_tail(problem, learner, level, eps, learn))
     return delay, int(hotspots)
 
 

@@ -6,18 +6,14 @@ import dagster as dg
 import polars as pl
 from pydantic import Field
 
-from assets.profiles import default_profile
 from models.parallel import ProcessPool, usable_cores
 from models.markdown import markdown_table
-from models.urban.experiments import evaluation_jobs, results_rows, run_job, thesis_markdown, thesis_tables, trajectories_rows
+from models.urban.experiments import EVALUATION_METHODS, evaluation_jobs, results_rows, run_job, thesis_markdown, thesis_tables, trajectories_rows
 from warehouse.artifacts import artifact_path, save_plot
-
-METHODS = ["col_marl", "col_marl_shield", "i_marl", "ch3_dqn_cnn", "idm", "krauss"]  # col_marl_shield: the learned policies under the optional safety layer, its own rows
 
 
 class EvaluationConfig(dg.Config):
-    profile: str = Field(default=default_profile(), description="kept for symmetry: the copies evaluated come from urban_scenarios")
-    methods: list[str] = Field(default=METHODS, description="methods to evaluate (RL methods need their urban_training policies)")
+    methods: list[str] = Field(default=EVALUATION_METHODS, description="methods to evaluate (RL methods need their urban_training policies)")
     workers: int | None = Field(default=None, description="episodes run in parallel, one libsumo process each (None: usable cores)")
     scenarios: list[str] | None = Field(default=None, description="evaluate only these scenarios' held-out copies (None: every scenario)")
     copies: int | None = Field(default=None, description="at most this many held-out copies per scenario, the lowest-numbered (None: all)")

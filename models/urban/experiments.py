@@ -23,6 +23,8 @@ METHODS_SUMO = {"idm": "IDM", "krauss": "Krauss"}
 # evaluation-only methods: a trained method's policies driven through the env's optional safety layer (models.urban.env.shield_masks),
 # reported as their own rows next to the learned policy's
 METHODS_SHIELDED = {"col_marl_shield": "col_marl"}
+# every method urban_results can evaluate, in the order of its rows (the shielded method next to the one it drives)
+EVALUATION_METHODS = ["col_marl", "col_marl_shield", "i_marl", "ch3_dqn_cnn", "idm", "krauss"]
 EVAL_EPISODE_SEED = 7919  # SUMO seed of a held-out copy's evaluation episode: this + the copy number, for every method and policy seed
 
 
@@ -284,9 +286,8 @@ def evaluation_jobs(scenarios_df: pl.DataFrame, policies: dict, methods: list[st
     one policy seed per method, recorded (for trajectories). One line when nothing is left to run."""
     from models.urban.col_marl import EpisodeJob
 
-    known = [*METHODS_RL, *METHODS_SHIELDED, *METHODS_SUMO]
-    if unknown := sorted(set(methods) - set(known)):
-        raise UrbanInputError(f"evaluation methods {unknown}: expected some of {', '.join(known)}")
+    if unknown := sorted(set(methods) - set(EVALUATION_METHODS)):
+        raise UrbanInputError(f"evaluation methods {unknown}: expected some of {', '.join(EVALUATION_METHODS)}")
     out = []
     rows = held_out(scenarios_df, scenarios, copies)
     if record:

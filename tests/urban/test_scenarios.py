@@ -4,7 +4,7 @@ import numpy as np
 import polars as pl
 import pytest
 
-from models.urban.experiments import evaluation_jobs, held_out, scenarios
+from models.urban.experiments import EVALUATION_METHODS, METHODS_RL, METHODS_SHIELDED, METHODS_SUMO, evaluation_jobs, held_out, scenarios
 from models.urban.network import UrbanInputError
 from models.urban.scenarios import Demand, vehicles
 
@@ -49,3 +49,9 @@ def test_held_out_copies_of_the_paper_profile_and_a_subset():
         held_out(df, copies=0)
     with pytest.raises(UrbanInputError, match=r"evaluation methods \['dqn'\]: expected some of col_marl"):
         evaluation_jobs(sub, {}, ["idm", "dqn"])
+
+
+def test_every_method_is_evaluable_once():
+    """urban_results' default list names each learned, shielded and SUMO method exactly once: a method added to one
+    of the tables is evaluated by default, and one left out would be refused as unknown."""
+    assert sorted(EVALUATION_METHODS) == sorted({*METHODS_RL, *METHODS_SHIELDED, *METHODS_SUMO})

@@ -20,8 +20,9 @@ import polars as pl
 from scipy.spatial import cKDTree
 
 from models.aviation.order import in_flight_order, runs
+from models.units import EARTH_RADIUS_KM, M_PER_FT, M_PER_NM
 
-EARTH_RADIUS_NM = 3440.065
+EARTH_RADIUS_NM = EARTH_RADIUS_KM * 1000.0 / M_PER_NM
 SEARCH_RADIUS_NM = 300.0
 FT_PER_NM_PATH = 318.0  # a 3-degree glide path loses 318 ft per NM
 MAX_OFF_TRACK_DEG = 60.0
@@ -85,7 +86,7 @@ def _best_among(lat, lon, alt_m, heading_deg, ils_only: bool):
     owner, cand = pairs["i"].astype(np.int64), pairs["j"].astype(np.int64)
     d_nm = 2 * np.arcsin(np.minimum(pairs["v"] / 2, 1.0)) * EARTH_RADIUS_NM
     off = np.radians((_bearing_deg(lat[owner], lon[owner], ap_lat[cand], ap_lon[cand]) - heading_deg[owner] + 180) % 360 - 180)
-    to_go = np.clip(alt_m[owner] / 0.3048, 0, None) / FT_PER_NM_PATH
+    to_go = np.clip(alt_m[owner] / M_PER_FT, 0, None) / FT_PER_NM_PATH
     score = np.abs(d_nm * np.sin(off)) + 0.25 * np.abs(d_nm * np.cos(off) - to_go)
     score[np.abs(np.degrees(off)) > MAX_OFF_TRACK_DEG] = np.inf
     terminal = to_go < TERMINAL_AREA_NM

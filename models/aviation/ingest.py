@@ -19,10 +19,8 @@ import polars as pl
 
 from models.aviation.order import runs
 from models.aviation.resample import EARTH_RADIUS_M
+from models.units import M_PER_FT, MPS_PER_FPM, MPS_PER_KT
 
-FT = 0.3048
-KT = 1852.0 / 3600.0
-FPM = FT / 60.0
 UNIT_SAMPLE_ROWS = 50_000
 TS_DTYPE = pl.Datetime("us", "UTC")
 
@@ -77,7 +75,7 @@ TRAFFIC = Schema(
         "onground": "onground",
         "pos_time": "last_position",
     },
-    {"alt_m": FT, "groundspeed_mps": KT, "vertical_rate_mps": FPM},
+    {"alt_m": M_PER_FT, "groundspeed_mps": MPS_PER_KT, "vertical_rate_mps": MPS_PER_FPM},
     frozenset({"callsign", "groundspeed_mps", "track_deg", "vertical_rate_mps", "onground", "pos_time"}),
 )
 SCHEMAS = (OPENSKY, TRAFFIC)
@@ -263,7 +261,7 @@ def check_units(df: pl.DataFrame, schema: Schema, source: str) -> None:
     # Metres read as feet put a cruise at 35,000 ft near 11,000 "ft" and FL450 at 13,700; feet data flying at a
     # median ground speed above 290 kt (150 m/s) has its 95th percentile above 14,000 ft unless it was cut to
     # low levels only (250 kt IAS below FL100).
-    if schema is TRAFFIC and p95_alt is not None and p95_alt < 14_000 * FT and (gs.median() or 0) > 150:
+    if schema is TRAFFIC and p95_alt is not None and p95_alt < 14_000 * M_PER_FT and (gs.median() or 0) > 150:
         raise IngestError(
             f"{source}: 'altitude' stays below 14,000 while flying at airliner speed: it looks like metres or "
             "flight levels, but the traffic schema reads it as feet"

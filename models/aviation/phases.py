@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import polars as pl
 
 from models.aviation.order import in_flight_order
+from models.units import EARTH_RADIUS_KM
 
 PHASES = ("climb", "cruise", "descent")
 
@@ -38,7 +39,7 @@ class PhaseConfig:
 def _haversine_km(lat1: pl.Expr, lon1: pl.Expr, lat2: pl.Expr, lon2: pl.Expr) -> pl.Expr:
     dlat, dlon = (lat2 - lat1).radians(), (lon2 - lon1).radians()
     a = (dlat / 2).sin() ** 2 + lat1.radians().cos() * lat2.radians().cos() * (dlon / 2).sin() ** 2
-    return 2 * 6371.0 * a.sqrt().arcsin()
+    return 2 * EARTH_RADIUS_KM * a.sqrt().arcsin()
 
 
 def _first_ts_where(cond: pl.Expr) -> pl.Expr:

@@ -18,6 +18,8 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from scipy.cluster.hierarchy import dendrogram as scipy_dendrogram
 
+from models.units import M_PER_FT
+
 DPI = 100
 PHASE_COLORS = {"climb": "#2ca02c", "cruise": "#1f77b4", "descent": "#d62728"}
 OTHER_COLOR = "#7f7f7f"  # points whose phase is unknown
@@ -26,7 +28,6 @@ MODE_COLORS = (
     "#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd",
     "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22", "#17becf",
 )
-M_PER_FT = 0.3048
 
 
 def mode_color(k: int) -> str:

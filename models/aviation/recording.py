@@ -24,9 +24,9 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from models.aviation.plots import MODE_COLORS
+from models.units import EARTH_RADIUS_KM
 from warehouse.storage import replace_atomically
 
-EARTH_RADIUS_KM = 6371.0
 APPLICATION_ID = "trafficlearn_modes"
 
 

@@ -11,8 +11,9 @@ import numpy as np
 import polars as pl
 
 from models.aviation.order import in_flight_order, runs
+from models.units import EARTH_RADIUS_KM
 
-EARTH_RADIUS_M = 6_371_000.0
+EARTH_RADIUS_M = EARTH_RADIUS_KM * 1000.0
 US = 1_000_000
 
 

@@ -18,9 +18,9 @@ import numpy as np
 import polars as pl
 
 from models.aviation.ingest import IngestConfig, ingest
+from models.units import M_PER_FT
 
 FT_PER_FL = 100.0
-M_PER_FT = 0.3048
 TS = pl.Datetime("us", "UTC")
 
 SO6_FIELDS = (

@@ -11,7 +11,8 @@ import torch
 
 from models.trajectory.data import Demonstrations
 from models.trajectory.env import TrajectoryEnv, rollout, start_day
-from models.trajectory.metrics import NM_M, NM_PER_DEG_LAT
+from models.trajectory.metrics import NM_PER_DEG_LAT
+from models.units import M_PER_NM
 
 OBSERVED_STEPS = 9  # 3 minutes at 20 s
 
@@ -40,7 +41,7 @@ def predict_mode_mean(means: dict[int, np.ndarray], train: Demonstrations, obser
     for obs, route in zip(observed, routes):
         k = min(OBSERVED_STEPS, len(obs))
         cands = train.route_modes(route)
-        scale = np.array([NM_PER_DEG_LAT * np.cos(np.radians(obs[0, 1])), NM_PER_DEG_LAT, 1 / NM_M])  # deg, deg, m -> nm
+        scale = np.array([NM_PER_DEG_LAT * np.cos(np.radians(obs[0, 1])), NM_PER_DEG_LAT, 1 / M_PER_NM])  # deg, deg, m -> nm
         dist = [np.linalg.norm((means[g][:k] - obs[:k]) * scale, axis=1).mean() for g in cands]
         best = cands[int(np.argmin(dist))]
         preds.append(means[best])

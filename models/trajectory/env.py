@@ -26,11 +26,11 @@ import torch
 import torch.nn.functional as F
 
 from models.aviation.weather import sample_weather
+from models.units import MEAN_EARTH_RADIUS_KM
 
 OBS_NAMES = ("lon", "lat", "alt_m", "elapsed_s", "temperature_k", "wind_u_mps", "wind_v_mps", "goal_east_nm", "goal_north_nm", "goal_up_m",
              "start_day")
 OBS_DIM = len(OBS_NAMES)
-EARTH_KM = 6371.0088
 DAY0_S = 1577836800.0  # 2020-01-01T00:00Z, origin of the start_day feature
 
 
@@ -72,7 +72,7 @@ def haversine_km(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     la, lb = torch.deg2rad(a[:, 1]), torch.deg2rad(b[:, 1])
     dlon = torch.deg2rad(b[:, 0] - a[:, 0])
     h = torch.sin((lb - la) / 2) ** 2 + torch.cos(la) * torch.cos(lb) * torch.sin(dlon / 2) ** 2
-    return 2 * EARTH_KM * torch.asin(torch.sqrt(h.clamp(0, 1)))
+    return 2 * MEAN_EARTH_RADIUS_KM * torch.asin(torch.sqrt(h.clamp(0, 1)))
 
 
 def _goal_axes(obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:

@@ -10,8 +10,8 @@ independent of small speed differences; the timing error is reported separately 
 import numpy as np
 from dtaidistance import dtw_ndim
 
-NM_M = 1852.0
-FT_M = 0.3048
+from models.units import M_PER_FT, M_PER_NM, MEAN_EARTH_RADIUS_KM
+
 NM_PER_DEG_LAT = 60.0  # 1 arc-minute of latitude = 1 nm
 
 METRIC_NAMES = ("rmse_lon_nm", "rmse_lat_nm", "rmse_alt_nm", "rmse_3d_nm", "ate_nm", "cte_nm", "vertical_ft")
@@ -21,7 +21,7 @@ def to_local_nm(points: np.ndarray, lat0_deg: float, lon0_deg: float) -> np.ndar
     """(n, 3) lon/lat/alt_m -> (n, 3) east/north/up in nm, equirectangular around (lat0, lon0)."""
     east = (points[:, 0] - lon0_deg) * NM_PER_DEG_LAT * np.cos(np.radians(lat0_deg))
     north = (points[:, 1] - lat0_deg) * NM_PER_DEG_LAT
-    return np.stack([east, north, points[:, 2] / NM_M], axis=1)
+    return np.stack([east, north, points[:, 2] / M_PER_NM], axis=1)
 
 
 def dtw_match(actual_nm: np.ndarray, predicted_nm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -77,7 +77,7 @@ def matched_errors(actual: np.ndarray, predicted: np.ndarray) -> dict[str, float
         "rmse_3d_nm": rms(np.linalg.norm(err, axis=1)),
         "ate_nm": rms(along),
         "cte_nm": rms(cross),
-        "vertical_ft": rms(err[:, 2] * NM_M / FT_M),
+        "vertical_ft": rms(err[:, 2] * M_PER_NM / M_PER_FT),
     }
 
 
@@ -104,4 +104,4 @@ def haversine_km(a_lon_lat: np.ndarray, b_lon_lat: np.ndarray) -> np.ndarray:
     """Great-circle distance in km between (..., 2) lon/lat arrays (degrees)."""
     a, b = np.radians(np.asarray(a_lon_lat, float)), np.radians(np.asarray(b_lon_lat, float))
     h = np.sin((b[..., 1] - a[..., 1]) / 2) ** 2 + np.cos(a[..., 1]) * np.cos(b[..., 1]) * np.sin((b[..., 0] - a[..., 0]) / 2) ** 2
-    return 2 * 6371.0088 * np.arcsin(np.sqrt(np.clip(h, 0.0, 1.0)))
+    return 2 * MEAN_EARTH_RADIUS_KM * np.arcsin(np.sqrt(np.clip(h, 0.0, 1.0)))

@@ -6,7 +6,8 @@ import numpy as np
 import polars as pl
 import pytest
 
-from models.aviation.ingest import FT, KT, IngestConfig, IngestError, ingest
+from models.aviation.ingest import IngestConfig, IngestError, ingest
+from models.units import M_PER_FT, MPS_PER_KT
 from tests.conftest import OPENSKY
 
 
@@ -65,10 +66,10 @@ def test_traffic_style_csv_units(small_raw, tmp_path):
         callsign="callsign",
         latitude="lat",
         longitude="lon",
-        altitude=pl.col("baroaltitude") / FT,
-        groundspeed=pl.col("velocity") / KT,
+        altitude=pl.col("baroaltitude") / M_PER_FT,
+        groundspeed=pl.col("velocity") / MPS_PER_KT,
         track="heading",
-        vertical_rate=pl.col("vertrate") / FT * 60,
+        vertical_rate=pl.col("vertrate") / M_PER_FT * 60,
     )
     t_csv, _, _ = ingest(_write(traffic, tmp_path / "traffic.csv"))
     t_pq, _, _ = ingest(_write(small_raw, tmp_path / "opensky.parquet"))
@@ -79,7 +80,7 @@ def test_traffic_style_csv_units(small_raw, tmp_path):
 def test_json_gz_epoch_ms(tmp_path, small_raw):
     recs = small_raw.head(5000).select(
         timestamp=pl.col("time").dt.epoch("ms"), icao24="icao24", callsign="callsign", latitude="lat",
-        longitude="lon", altitude=pl.col("baroaltitude") / FT,
+        longitude="lon", altitude=pl.col("baroaltitude") / M_PER_FT,
     )
     path = tmp_path / "sample.json.gz"
     with gzip.open(path, "wt") as f:
@@ -97,7 +98,7 @@ def test_json_gz_epoch_ms(tmp_path, small_raw):
         (lambda p, raw: (p / "x.parquet").write_bytes(b"this is not parquet") and p / "x.parquet", "not a readable parquet"),
         (lambda p, raw: (p / "notes.txt").write_text("hello") and p / "notes.txt", "unsupported file type"),
         (lambda p, raw: _write(raw.drop("lat"), p / "nolat.parquet"), "missing columns ['lat']"),
-        (lambda p, raw: _write(raw.with_columns(pl.col("baroaltitude") / FT), p / "feet.parquet"), "looks like feet"),
+        (lambda p, raw: _write(raw.with_columns(pl.col("baroaltitude") / M_PER_FT), p / "feet.parquet"), "looks like feet"),
         (lambda p, raw: _write(raw.with_columns(pl.col("velocity") * 3.6 * 10), p / "speed.parquet"), "wrong unit"),
         (lambda p, raw: _write(raw.with_columns(time=pl.lit("yesterday")), p / "badtime.csv"), "not timestamps"),
         (lambda p, raw: p, "is a folder"),
@@ -116,7 +117,7 @@ def test_bad_input_gives_one_line_error(tmp_path, small_raw, make, message):
 def test_traffic_altitude_in_metres_is_refused(tmp_path, small_raw, to_unit):
     traffic = small_raw.select(
         timestamp="time", icao24="icao24", latitude="lat", longitude="lon", altitude=pl.col("baroaltitude") / to_unit,
-        groundspeed=pl.col("velocity") / KT,
+        groundspeed=pl.col("velocity") / MPS_PER_KT,
     )
     with pytest.raises(IngestError, match="looks like metres or flight levels"):
         ingest(_write(traffic, tmp_path / "m.csv"))
@@ -125,11 +126,11 @@ def test_traffic_altitude_in_metres_is_refused(tmp_path, small_raw, to_unit):
 def test_traffic_feet_cut_to_low_levels_is_kept(tmp_path, small_raw):
     """Feet data of a low sector (FL100-FL150) flown at airliner speed is not mistaken for metres."""
     traffic = small_raw.select(
-        timestamp="time", icao24="icao24", latitude="lat", longitude="lon", groundspeed=pl.col("velocity") / KT,
-        altitude=(pl.col("baroaltitude") / FT).clip(10_000, 15_000),
+        timestamp="time", icao24="icao24", latitude="lat", longitude="lon", groundspeed=pl.col("velocity") / MPS_PER_KT,
+        altitude=(pl.col("baroaltitude") / M_PER_FT).clip(10_000, 15_000),
     )
     tracks, _, _ = ingest(_write(traffic, tmp_path / "low.csv"))
-    assert tracks.height > 0 and tracks["alt_m"].max() == pytest.approx(15_000 * FT)
+    assert tracks.height > 0 and tracks["alt_m"].max() == pytest.approx(15_000 * M_PER_FT)
 
 
 def test_spikes_and_ground_points_rejected(tmp_path, small_raw):

@@ -34,6 +34,7 @@ single-line message that names the file or the ranges involved.
 from __future__ import annotations
 
 import datetime as dt
+import re
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -167,7 +168,9 @@ def _detect_format(path: Path) -> str:
         return "netcdf4"
     if head.startswith(b"CDF\x01") or head.startswith(b"CDF\x02") or head.startswith(b"CDF\x05"):
         return "netcdf3"
-    if b"GRIB" in head:  # GRIB messages may follow a short WMO bulletin header
+    # "GRIB" then the edition (1 or 2) in the message's 8th byte; a short WMO bulletin header may come first. The
+    # edition byte tells a GRIB file from text that merely mentions GRIB.
+    if re.search(rb"GRIB.{3}[\x01\x02]", head, re.DOTALL):
         return "grib"
     if suffix in _NETCDF_SUFFIXES or suffix in _GRIB_SUFFIXES:
         expected = "NetCDF" if suffix in _NETCDF_SUFFIXES else "GRIB"
@@ -261,7 +264,23 @@ def _grib_isobaric_names(path: Path) -> list[str]:
 
 
 def _dataset_to_frame(ds: Any, path: Path, kind: str, bbox: tuple[float, float, float, float] | None) -> pl.DataFrame:
-    # 1. Which variables hold temperature and wind?
+    var_names = _value_variables(ds, path, kind)
+    lat_name, lon_name, level_name = _grid_coords(ds, path)
+    times, time_dim = _valid_times(ds, path)  # analysis time + forecast step for forecasts
+    levels = _levels_hpa(ds[level_name])
+    level_dim = level_name if level_name in ds.dims else None
+    lat, lon, lat_keep, lon_keep = _horizontal_crop(ds, lat_name, lon_name, bbox, path)
+    wanted_dims = [d for d in (time_dim, level_dim, lat_name, lon_name) if d is not None]
+    expected = (times.size, levels.size, lat.size, lon.size)
+    arrays = {
+        column: _load_variable(ds[name], wanted_dims, (lat_name, lon_name), (lat_keep, lon_keep), time_dim, level_dim, expected, path)
+        for column, name in var_names.items()
+    }
+    return _grid_frame(times, levels, lat, lon, arrays, path)
+
+
+def _value_variables(ds: Any, path: Path, kind: str) -> dict[str, str]:
+    """Which variables hold temperature and wind: {column: variable name}."""
     var_names: dict[str, str] = {}
     missing = []
     for column, (names, standard_name) in _VARIABLES.items():
@@ -279,8 +298,11 @@ def _dataset_to_frame(ds: Any, path: Path, kind: str, bbox: tuple[float, float, 
         else:
             found_list = f"variables {sorted(map(str, ds.data_vars))}"
         raise WeatherError(f"{path}: missing {', '.join(missing)}; found {found_list}")
+    return var_names
 
-    # 2. Which coordinates are latitude, longitude and pressure level?
+
+def _grid_coords(ds: Any, path: Path) -> tuple[str, str, str]:
+    """Names of the latitude, longitude and pressure-level coordinates (regular 1-D lat/lon only)."""
     lat_name = _find_coord(ds, _LAT_NAMES)
     lon_name = _find_coord(ds, _LON_NAMES)
     level_name = _find_coord(ds, _LEVEL_NAMES)
@@ -301,18 +323,23 @@ def _dataset_to_frame(ds: Any, path: Path, kind: str, bbox: tuple[float, float, 
             raise WeatherError(
                 f"{path}: coordinate {name!r} is {ds[name].ndim}-D; only regular latitude/longitude grids are supported"
             )
+    return lat_name, lon_name, level_name
 
-    # 3. Which times are valid?  (analysis time + forecast step for forecasts)
-    times, time_dim = _valid_times(ds, path)
 
-    # 4. Pressure levels in hPa (CMIP-style `plev` is in Pa).
-    levels = np.atleast_1d(np.asarray(ds[level_name].values, dtype=np.float64))
-    units = str(ds[level_name].attrs.get("units", "")).strip().lower()
+def _levels_hpa(coord: Any) -> np.ndarray:
+    """Pressure levels in hPa (CMIP-style `plev` is in Pa)."""
+    levels = np.atleast_1d(np.asarray(coord.values, dtype=np.float64))
+    units = str(coord.attrs.get("units", "")).strip().lower()
     if units == "pa" or (units == "" and levels.size and np.nanmax(levels) > 2000):
         levels = levels / 100.0
-    level_dim = level_name if level_name in ds.dims else None
+    return levels
 
-    # 5. Horizontal crop before loading values (memory) and longitude normalisation.
+
+def _horizontal_crop(
+    ds: Any, lat_name: str, lon_name: str, bbox: tuple[float, float, float, float] | None, path: Path
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(latitudes kept, longitudes kept in [-180, 180), and the masks that keep them): the crop is chosen before any
+    value is loaded (memory)."""
     lat = np.asarray(ds[lat_name].values, dtype=np.float64)
     lon = (np.asarray(ds[lon_name].values, dtype=np.float64) + 180.0) % 360.0 - 180.0
     lat_keep = np.ones(lat.size, dtype=bool)
@@ -335,44 +362,47 @@ def _dataset_to_frame(ds: Any, path: Path, kind: str, bbox: tuple[float, float, 
     unique_mask = np.zeros(lon.size, dtype=bool)
     unique_mask[first] = True
     lon_keep &= unique_mask
-    lat, lon = lat[lat_keep], lon[lon_keep]
+    return lat[lat_keep], lon[lon_keep], lat_keep, lon_keep
 
-    # 6. Load each variable as a (time, level, lat, lon) numpy array.
-    wanted_dims = [d for d in (time_dim, level_dim, lat_name, lon_name) if d is not None]
-    arrays: dict[str, np.ndarray] = {}
-    for column, name in var_names.items():
-        da = ds[name]
-        for dim in list(da.dims):
-            if dim in wanted_dims:
-                continue
-            if da.sizes[dim] == 1:
-                da = da.isel({dim: 0})  # harmless length-1 extra dimension (ensemble number, expver...)
-            else:
-                raise WeatherError(
-                    f"{path}: variable {name!r} has an unexpected dimension {dim!r} of size "
-                    f"{da.sizes[dim]} (dimensions {tuple(map(str, da.dims))}); select one value first"
-                )
-        missing_dims = [d for d in (lat_name, lon_name) if d not in da.dims]
-        if missing_dims:
-            raise WeatherError(f"{path}: variable {name!r} lacks dimension(s) {missing_dims}")
-        da = da.isel({lat_name: np.flatnonzero(lat_keep), lon_name: np.flatnonzero(lon_keep)})
-        order = [d for d in wanted_dims if d in da.dims]
-        values = np.asarray(da.transpose(*order).values, dtype=np.float64)
-        # Add the axes that were scalar coordinates (single time, single level).
-        if time_dim is None or time_dim not in da.dims:
-            values = values[np.newaxis]
-        if level_dim is None or level_dim not in da.dims:
-            values = values[:, np.newaxis]
-        expected = (times.size, levels.size, lat.size, lon.size)
-        if values.shape != expected:
-            raise WeatherError(f"{path}: variable {name!r} has shape {values.shape}, expected {expected}")
-        arrays[column] = values
 
-    # 7. Sort every axis, so the flattened grid comes out sorted by time, level, lat, lon.
+def _load_variable(
+    da: Any, wanted_dims: list[str], horizontal: tuple[str, str], keep: tuple[np.ndarray, np.ndarray],
+    time_dim: str | None, level_dim: str | None, expected: tuple[int, ...], path: Path,
+) -> np.ndarray:
+    """One variable, cropped, as a (time, level, lat, lon) float64 array."""
+    name = da.name
+    for dim in list(da.dims):
+        if dim in wanted_dims:
+            continue
+        if da.sizes[dim] == 1:
+            da = da.isel({dim: 0})  # harmless length-1 extra dimension (ensemble number, expver...)
+        else:
+            raise WeatherError(
+                f"{path}: variable {name!r} has an unexpected dimension {dim!r} of size "
+                f"{da.sizes[dim]} (dimensions {tuple(map(str, da.dims))}); select one value first"
+            )
+    missing_dims = [d for d in horizontal if d not in da.dims]
+    if missing_dims:
+        raise WeatherError(f"{path}: variable {name!r} lacks dimension(s) {missing_dims}")
+    da = da.isel({d: np.flatnonzero(k) for d, k in zip(horizontal, keep)})
+    values = np.asarray(da.transpose(*[d for d in wanted_dims if d in da.dims]).values, dtype=np.float64)
+    # Add the axes that were scalar coordinates (single time, single level).
+    if time_dim is None or time_dim not in da.dims:
+        values = values[np.newaxis]
+    if level_dim is None or level_dim not in da.dims:
+        values = values[:, np.newaxis]
+    if values.shape != expected:
+        raise WeatherError(f"{path}: variable {name!r} has shape {values.shape}, expected {expected}")
+    return values
+
+
+def _grid_frame(
+    times: np.ndarray, levels: np.ndarray, lat: np.ndarray, lon: np.ndarray, arrays: dict[str, np.ndarray], path: Path
+) -> pl.DataFrame:
+    """The tidy table, one row per grid point, sorted by time, level, lat, lon (every axis sorted first)."""
     it, il, iy, ix = (np.argsort(a, kind="stable") for a in (times, levels, lat, lon))
     times, levels, lat, lon = times[it], levels[il], lat[iy], lon[ix]
-    for column in arrays:
-        arrays[column] = arrays[column][np.ix_(it, il, iy, ix)]
+    arrays = {column: values[np.ix_(it, il, iy, ix)] for column, values in arrays.items()}
     for what, axis in (("time", times.view(np.int64)), ("level", levels), ("latitude", lat)):
         if np.any(np.diff(axis) == 0):
             raise WeatherError(f"{path}: duplicate {what} values in {axis}")

@@ -320,8 +320,13 @@ def test_bad_files(tmp_path):
     assert "NetCDF" in message
 
     fake = tmp_path / "broken.grib2"
-    fake.write_bytes(b"GRIB" + bytes(200))
-    raises_one_line(read_weather, fake, match="cannot read .*broken.grib2")
+    fake.write_bytes(b"GRIB" + bytes(3) + b"\x02" + bytes(200))  # a GRIB 2 indicator, then nothing valid
+    raises_one_line(read_weather, fake, match="cannot read .*broken.grib2 as grib")
+
+    # text that mentions GRIB is not GRIB (it used to reach cfgrib, which logs a traceback per "message")
+    notes = tmp_path / "notes.grib2"
+    notes.write_text("# how the GRIB files were cropped\n" * 20)
+    raises_one_line(read_weather, notes, match="extension says GRIB but the content is not")
 
     bad_hdf = tmp_path / "broken.nc"
     bad_hdf.write_bytes(b"\x89HDF\r\n\x1a\n" + bytes(200))

@@ -11,6 +11,9 @@ import socket
 import subprocess
 import sys
 
+from pipelines.instance import dagster_home
+from warehouse.storage import home
+
 
 def _unusable(host: str, port: str) -> str | None:
     """Why the UI cannot serve on host:port, or None. A busy port matters most: dagster dev would log "Serving ..."
@@ -40,8 +43,8 @@ def main() -> int:
     cmd = [sys.executable, "-m", "dagster", "dev", "-m", "pipelines.definitions", "-d", repo, "-h", host, "-p", port]
     # run from DAGSTER_HOME: from the checkout, dagster dev warns that the template dagster.yaml there "will not be used";
     # the homes as absolute paths, so that a relative one still means what it meant here
-    homes = {k: os.path.abspath(os.environ[k]) for k in ("DAGSTER_HOME", "TRAFFICLEARN_HOME") if os.environ.get(k)}
-    cwd = homes.get("DAGSTER_HOME", repo)
+    cwd = str(dagster_home())
+    homes = {"DAGSTER_HOME": cwd, "TRAFFICLEARN_HOME": str(home())}
 
     def restore_defaults() -> None:
         signal.signal(signal.SIGINT, signal.SIG_DFL)
@@ -50,7 +53,6 @@ def main() -> int:
     # `dagster dev` still works; its notice that the `dg` CLI (not installed) supersedes it only confuses
     quiet = ",".join(filter(None, [os.environ.get("PYTHONWARNINGS"), "ignore:Function `dev_command` is superseded"]))
     env = {**os.environ, **homes, "PYTHONWARNINGS": quiet}
-    os.makedirs(cwd, exist_ok=True)  # `make dev` makes DAGSTER_HOME; `python -m pipelines.dev` may not have
     child = subprocess.Popen(cmd, preexec_fn=restore_defaults, cwd=cwd, env=env)
     print(f"Dagster UI on http://{host}:{port} (Ctrl-C stops it)", flush=True)
 

@@ -1,7 +1,7 @@
 """`python -m pipelines.materialize GROUP [GROUP ...]`: materialise asset groups in order with a progress bar.
 
 What `make demo` runs. Each group is one Dagster run of its group job (checks included) in the instance
-under $DAGSTER_HOME, so the runs and their full logs are in the UI (`make dev`) afterwards; the terminal
+under $DAGSTER_HOME (default $TRAFFICLEARN_HOME/dagster), so the runs and their full logs are in the UI (`make dev`) afterwards; the terminal
 shows a progress bar per group and warnings, and a text log per run goes to $TRAFFICLEARN_HOME/logs/.
 The same as `dagster asset materialize --select group:GROUP`, which prints every log line instead.
 `--config-json '{"ops": {STEP: {"config": {...}}}}'` configures steps as `dagster asset materialize` does; each
@@ -16,6 +16,7 @@ import time
 import dagster as dg
 
 from pipelines.definitions import SYSTEMS, defs
+from pipelines.instance import dagster_home
 from warehouse.storage import home
 
 
@@ -71,6 +72,7 @@ def main(argv: list[str] | None = None) -> int:
             dg.validate_run_config(job, {"ops": own[group]})
         except dg.DagsterInvalidConfigError as e:  # Dagster's message lists every error over many lines
             parser.error(f"--config-json for {group}: " + "; ".join(err.message.replace("\n", " ") for err in e.errors))
+    dagster_home()  # without the Makefile: the instance under $TRAFFICLEARN_HOME, as `make demo` has it
     with dg.DagsterInstance.get() as instance:
         for group, job in jobs.items():
             ok, line = run(job, group, instance, own[group])

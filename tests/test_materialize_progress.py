@@ -7,6 +7,7 @@ import dagster as dg
 import pytest
 
 from pipelines import materialize
+from pipelines.instance import TEMPLATE, dagster_home
 from pipelines.progress import progress_logger
 
 
@@ -98,3 +99,23 @@ def test_config_json_configures_steps_and_a_failure_is_one_line(tmp_path, monkey
             materialize.main(["aviation", "dcb", "--config-json", json.dumps(config)])
         last = capsys.readouterr().err.strip().splitlines()[-1]  # after argparse's usage: the error, on one line
         assert exc.value.code == 2 and last.startswith("python -m pipelines.materialize: error: ") and message in last
+
+
+def test_runs_without_dagster_home_in_the_instance_under_trafficlearn_home(tmp_path, monkeypatch, capsys):
+    """As the README's "Bring your own data" command is typed, outside make: no DAGSTER_HOME set. The run goes to
+    $TRAFFICLEARN_HOME/dagster with the checkout's dagster.yaml (Dagster alone stops with a page about DAGSTER_HOME)."""
+    monkeypatch.setenv("TRAFFICLEARN_HOME", str(tmp_path))
+    monkeypatch.setenv("DAGSTER_HOME", "")  # recorded, so that the value the run exports is undone after the test
+    monkeypatch.delenv("DAGSTER_HOME")
+    bad_path = {"ops": {"flight_ingest": {"config": {"source_path": str(tmp_path / "none.csv")}}}}
+    assert materialize.main(["aviation", "--config-json", json.dumps(bad_path)]) == 1
+    out, err = capsys.readouterr()
+    assert "none.csv: no such file" in err and "aviation: FAILED at flight_ingest" in out
+    assert (tmp_path / "dagster" / "dagster.yaml").read_text() == TEMPLATE.read_text()
+    with dg.DagsterInstance.get() as instance:  # DAGSTER_HOME now points there: the failed run is recorded in it
+        assert instance.root_directory == str(tmp_path / "dagster") and len(instance.get_runs()) == 1
+
+
+def test_a_set_dagster_home_is_used_as_it_is(tmp_path, monkeypatch):
+    monkeypatch.setenv("DAGSTER_HOME", str(tmp_path / "mine"))
+    assert dagster_home() == tmp_path / "mine" and not (tmp_path / "mine" / "dagster.yaml").exists()

@@ -103,6 +103,10 @@ def test_cli_tables_sql_formats(capsys):
     assert main(["sql", "SELECT CAST(outcome AS INTEGER) FROM ingest_summary"]) == 1
     err = capsys.readouterr().err
     assert err.startswith("error: Conversion Error") and len(err.strip().splitlines()) == 1
+    # a table not materialised (yet): the error names the ones there are
+    assert main(["sql", "SELECT * FROM flights"]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("error: Catalog Error") and err.strip().endswith("(tables: ingest_summary)") and len(err.strip().splitlines()) == 1
 
 
 def test_cli_shell_piped(monkeypatch, capsys):

@@ -42,6 +42,14 @@ def _table_names(con: duckdb.DuckDBPyConnection) -> list[str]:
     return [r[0] for r in con.sql("SELECT view_name FROM duckdb_views() WHERE NOT internal").fetchall()]
 
 
+def _catalog_hint(con: duckdb.DuckDBPyConnection, error: duckdb.Error) -> str:
+    """For an unknown table: which tables there are (a table appears once its asset has been materialised)."""
+    if not isinstance(error, duckdb.CatalogException):
+        return ""
+    names = _table_names(con)
+    return f" (tables: {', '.join(sorted(names))})" if names else " (no tables materialised yet: run `make demo`)"
+
+
 def cmd_tables(args) -> int:
     with connect() as con:
         names = _table_names(con)
@@ -64,7 +72,7 @@ def cmd_sql(args) -> int:
             # DuckDB runs a SELECT lazily: conversion and other run-time errors come at fetch time.
             text = None if rel is None else _render(rel, args.format)
         except duckdb.Error as e:
-            print(f"error: {str(e).splitlines()[0]}", file=sys.stderr)
+            print(f"error: {str(e).splitlines()[0]}{_catalog_hint(con, e)}", file=sys.stderr)
             return 1
         if text is not None:  # None: a statement with no result set; DuckDB already refused anything that writes
             print(text)

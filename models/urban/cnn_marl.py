@@ -153,7 +153,7 @@ class Ch3Env(UrbanParallelEnv):
         for v, a in zip(ids, action):
             self.sim.ls.vehicle.setSpeed(v, SPEEDS_MPS[a])
 
-    def _state_reward(self, snap, junction, road_code, internal, route, dist):
+    def _state_reward(self, snap, junction, road_code, internal, route, dist, centre_dist):
         geo = self.geo
         xy = np.column_stack([snap.x, snap.y])
         entry = np.where(internal[:, None], xy, np.array([geo.lane_end.get(ln, (0.0, 0.0)) for ln in snap.lane]).reshape(-1, 2))

@@ -43,9 +43,10 @@ import gymnasium
 import numpy as np
 from pettingzoo import ParallelEnv
 
+from models.urban import kernels
 from models.urban.network import UrbanInputError, read_net
 from models.urban.scenarios import ACTIONS_MPS2, MIN_GAP_M, VEHICLE_TYPES
-from models.urban.sim import ACTION_S, SPEED_MODE_CAR_FOLLOWING, SPEED_MODE_FREE, SPEED_MODE_SUMO, ScenarioFiles, Simulation
+from models.urban.sim import ACTION_S, SPEED_MODE_CAR_FOLLOWING, SPEED_MODE_FREE, SPEED_MODE_SUMO, ScenarioFiles, Simulation, _raw
 
 GOAL_REWARD = 1000.0  # L of Eq 4.3 (not given; "not sensitive"): a second of delay must cost more ((1 - γ) L = 10) than Eq 4.6 saves by stopping (c2 + f(v) ≤ 6)
 SAFE_DIST_M = 20.0  # safe_dist of Eq 4.5-4.7 (thesis); the floor of the speed-dependent rules below
@@ -82,6 +83,11 @@ POS_SCALE_M, LEADER_SCALE_M = 200.0, 200.0
 STATE_DIM = {"col": 6, "ind": 4}
 _CAR_MPS2, _HEAVY_MPS2 = np.array(ACTIONS_MPS2["car"]), np.array(ACTIONS_MPS2["heavy"])
 _ALL_ACTIONS = np.ones(len(_CAR_MPS2), bool)
+# the constants the state and reward kernels use, as the tuple they take (in the order of kernels.PARAMS)
+KERNEL_PARAMS = tuple(float(dict(
+    safe_dist_m=SAFE_DIST_M, safe_headway_s=SAFE_HEADWAY_S, action_s=ACTION_S, max_brake_mps2=MAX_BRAKE_MPS2, c1=C1, c2=C2, c3=C3, beta1=BETA1,
+    beta2=BETA2, min_fveh_dist_m=MIN_FVEH_DIST_M, max_f_d=MAX_F_D, inter_time_s=INTER_TIME_S, pos_scale_m=POS_SCALE_M, leader_scale_m=LEADER_SCALE_M,
+)[name]) for name in kernels.PARAMS)
 
 
 def _rivals(junction: np.ndarray, other: np.ndarray) -> np.ndarray:
@@ -95,23 +101,19 @@ def _stop_m(v: np.ndarray, travel_m: float | np.ndarray = 0.0) -> np.ndarray:
     return travel_m + v * SHIELD_REACTION_S + v**2 / (2 * SHIELD_BRAKE_MPS2)
 
 
-def conflict_matrix(junction: np.ndarray, road: np.ndarray, centre_dist_m: np.ndarray, speed: np.ndarray):
+def conflict_matrix(junction: np.ndarray, road: np.ndarray, centre_dist_m: np.ndarray, speed: np.ndarray) -> np.ndarray:
     """conflict [n, n]: vehicle i is predicted to collide with j (Eq 4.1-4.2): both approach (or are
     inside) the same junction from different roads and reach its centre less than INTER_TIME_S apart.
     junction = -1 for vehicles with no junction ahead; road = integer code of the vehicle's road; centre_dist_m =
     inter_dist, the distance to the junction's centre (Eq 4.1)."""
-    inter_time = centre_dist_m / np.maximum(speed, 0.1)
-    close_in_time = np.abs(inter_time[:, None] - inter_time[None, :]) < INTER_TIME_S
-    return _rivals(junction, road[:, None] != road[None, :]) & close_in_time
+    return kernels.conflict_matrix(junction, road, centre_dist_m, speed, INTER_TIME_S)
 
 
 def junction_terms(junction: np.ndarray, road: np.ndarray, centre_dist_m: np.ndarray, speed: np.ndarray, incoming_lanes: np.ndarray):
-    """col_term and density of every vehicle (Eq 4.2), vectorised over all vehicles and junctions (arguments: conflict_matrix)."""
-    active = junction >= 0
-    conflicts = conflict_matrix(junction, road, centre_dist_m, speed).sum(axis=1)
-    # density (§4.2.1): "the number of vehicles that the ego vehicle is predicted to collide with", per incoming lane
-    density = np.where(active, conflicts / incoming_lanes[np.maximum(junction, 0)], 0.0)
-    return (conflicts > 0).astype(float), density
+    """col_term and density of every vehicle (Eq 4.2; arguments: conflict_matrix): col_term = 1 where conflict_matrix's
+    row has a conflict; density (§4.2.1): "the number of vehicles that the ego vehicle is predicted to collide with",
+    per incoming lane of its junction (0 with no junction ahead)."""
+    return kernels.junction_terms(junction, road, centre_dist_m, speed, incoming_lanes, INTER_TIME_S)
 
 
 def shield_masks(junction: np.ndarray, road: np.ndarray, centre_dist_m: np.ndarray, stop_dist_m: np.ndarray, speed: np.ndarray,
@@ -205,29 +207,20 @@ def shield_masks(junction: np.ndarray, road: np.ndarray, centre_dist_m: np.ndarr
 
 def safe_dist(speed: np.ndarray, rule: str | None = None) -> np.ndarray:
     """safe_dist of Eq 4.5-4.7 (and Eq 3.3 for i-MARL) per vehicle under SAFE_DIST_RULE (or `rule`)."""
+    return kernels.safe_dist(speed, _rule_code(rule), KERNEL_PARAMS)
+
+
+def _rule_code(rule: str | None) -> int:
     rule = rule or SAFE_DIST_RULE
-    if rule == "thesis":
-        return np.full(np.shape(speed), SAFE_DIST_M)
-    if rule == "headway":
-        return np.maximum(SAFE_DIST_M, speed * SAFE_HEADWAY_S)
-    if rule == "stopping":
-        return np.maximum(SAFE_DIST_M, speed * ACTION_S + speed**2 / (2 * MAX_BRAKE_MPS2))
-    raise ValueError(f"safe_dist rule {rule!r}: expected thesis, headway or stopping")
+    if rule not in kernels.RULES:
+        raise ValueError(f"safe_dist rule {rule!r}: expected thesis, headway or stopping")
+    return kernels.RULES.index(rule)
 
 
 def reward(variant: str, speed: np.ndarray, vmax: float, fveh_dist: np.ndarray, col_term: np.ndarray, rule: str | None = None) -> np.ndarray:
-    """Non-terminal reward r(s, a), vectorised."""
-    fv = speed / vmax
-    sd = safe_dist(speed, rule)
-    near = (fveh_dist >= 0) & (fveh_dist < sd)
-    if variant == "ind":
-        return np.where(near, -(BETA2 + fv) * (sd - fveh_dist), BETA1 * fv)  # Eq 3.2, 3.3 with C = 1
-    fd = np.minimum(sd / np.maximum(np.minimum(fveh_dist, sd), MIN_FVEH_DIST_M), MAX_F_D)
-    return np.where(
-        col_term > 0,
-        np.where(near, -(C3 + fv) * fd, -(C2 + fv)),  # Eq 4.7, 4.6
-        np.where(near, -(C1 + fv) * fd, fv),  # Eq 4.5, 4.4
-    )
+    """Non-terminal reward r(s, a) of every vehicle: "col" Eq 4.4-4.7 (by col_term and whether the front vehicle is
+    nearer than safe_dist), "ind" Eq 3.2-3.3 with C = 1."""
+    return kernels.reward(variant == "col", speed, vmax, fveh_dist, col_term, _rule_code(rule), KERNEL_PARAMS)
 
 
 @functools.cache
@@ -321,6 +314,8 @@ class UrbanParallelEnv(ParallelEnv):
         self.possible_agents = re.findall(r'<vehicle id="([^"]+)"', text)
         self.routes = {rid: edges.split() for rid, edges in re.findall(r'<route id="([^"]+)" edges="([^"]*)"', text)}
         self.route_row = route_rows(self.routes)
+        self.vehicle_route = {v: self.route_row[route_agent(v)] for v in self.possible_agents}  # vehicle -> its route's row
+        self.is_car = {v: ".car." in v for v in self.possible_agents}  # else heavy (Table 4.1's other accelerations)
         self.route_edges = np.array([len(edges) for edges in self.routes.values()])  # per route row
         self.vmax = files.max_speed_mps
         dim = STATE_DIM[variant]
@@ -353,25 +348,26 @@ class UrbanParallelEnv(ParallelEnv):
         ids = [a for a in self.agents if a in actions]
         if ids:
             snap = self._last
-            row = {v: i for i, v in enumerate(snap.ids)}
-            self._apply(ids, np.array([int(actions[v]) for v in ids]), snap.speed[[row[v] for v in ids]])
+            row = dict(zip(snap.ids, range(len(snap.ids))))
+            action = np.fromiter(map(actions.__getitem__, ids), int, len(ids))
+            self._apply(ids, action, snap.speed[np.fromiter(map(row.__getitem__, ids), int, len(ids))])
         previous = self.agents
         sim.advance(ACTION_S)
         obs, rewards, goal = self._observe()
-        terminated = {}
+        terminated = dict.fromkeys(obs, False)
+        failed = sim.new_collisions | sim.new_teleports
         for v in previous:
-            if v in sim.new_collisions or v in sim.new_teleports:
+            if v in failed:
                 rewards[v], terminated[v] = -GOAL_REWARD, True
                 obs.setdefault(v, np.zeros(self._obs_space.shape, np.float32))
             elif v not in obs or v in goal:  # crossed its last junction (or arrived within the second)
                 rewards[v], terminated[v] = GOAL_REWARD, True
                 obs.setdefault(v, np.zeros(self._obs_space.shape, np.float32))
-        self.finished |= sim.new_collisions | sim.new_teleports
+        self.finished |= failed
         sim.new_collisions, sim.new_teleports = set(), set()
-        terminated = {v: terminated.get(v, False) for v in obs}
         done = sim.done  # two libsumo calls: once per step, not per vehicle
-        truncated = {v: done and not terminated[v] for v in obs}
-        self.agents = [v for v in obs if not terminated[v] and not truncated[v]]
+        truncated = {v: done and not t for v, t in terminated.items()}
+        self.agents = [] if done else [v for v, t in terminated.items() if not t]
         if not self.agents:  # nobody to drive right now, but vehicles may still come or be on their last road
             new = self._wait_for_agents()
             obs |= new
@@ -411,58 +407,48 @@ class UrbanParallelEnv(ParallelEnv):
         n = len(snap.ids)
         if n == 0:
             return {}, {}, set()
+        ids = snap.ids
+        route = np.fromiter(map(self.vehicle_route.__getitem__, ids), int, n)
         # the network's facts of each vehicle's lane: road, junction ahead (or inside), internal edge?
-        road_code, junction, internal = idx.lane_road[snap.lane_code], idx.lane_junction[snap.lane_code], idx.lane_internal[snap.lane_code]
-        route = np.fromiter((self.route_row[route_agent(v)] for v in snap.ids), int, n)
-        last_road = (snap.route_index >= self.route_edges[route] - 1) & ~internal
-        junction[last_road] = -1
-        dist = np.where(internal, 0.0, np.maximum(snap.lane_len - snap.lane_pos, 0.0))
-        state, r = self._state_reward(snap, junction, road_code, internal, route, dist)
-        goal = set()
-        for i in np.flatnonzero(last_road):
-            v = snap.ids[i]
-            if v not in self.finished:
-                self.finished.add(v)
+        road_code, junction, internal, dist, centre_dist, last_road = kernels.lane_facts(
+            snap.lane_code, snap.lane_pos, snap.route_index, route, self.route_edges, idx.lane_road, idx.lane_junction, idx.lane_internal,
+            idx.lane_len, idx.lane_centre_m)
+        state, r = self._state_reward(snap, junction, road_code, internal, route, dist, centre_dist)
+        goal, finished = set(), self.finished
+        for i in last_road.nonzero()[0].tolist():
+            v = ids[i]
+            if v not in finished:
+                finished.add(v)
                 goal.add(v)
                 sim.ls.vehicle.setSpeedMode(v, SPEED_MODE_SUMO)  # SUMO's safety checks back on
                 sim.ls.vehicle.setSpeed(v, self.vmax)  # max acceleration up to vel_max (§4.3.1)
-        keep = [i for i, v in enumerate(snap.ids) if v not in self.finished or v in goal]
-        obs = {snap.ids[i]: state[i] for i in keep}
+        keep = [i for i, v in enumerate(ids) if v not in finished or v in goal]
+        if len(keep) < n:
+            ids, state, r = [ids[i] for i in keep], state[keep], r[keep]
         if self.shield:
-            self.action_masks = {snap.ids[i]: self._masks[i] for i in keep}
-        rewards = {snap.ids[i]: float(r[i]) for i in keep}
-        return obs, rewards, goal
+            self.action_masks = dict(zip(ids, self._masks[keep]))
+        return dict(zip(ids, state)), dict(zip(ids, r.tolist())), goal
 
     def _apply(self, ids: list, action: np.ndarray, speed: np.ndarray) -> None:
         """Table 4.1: the chosen acceleration, held for the next second."""
-        is_car = np.array([".car." in v for v in ids])
-        accel = np.where(is_car, _CAR_MPS2[action], _HEAVY_MPS2[action])
+        is_car = np.fromiter(map(self.is_car.__getitem__, ids), bool, len(ids))
         # speed mode 32 follows orders beyond the limits: keep 0 <= v <= vel_max over the held second
-        accel = np.clip(accel, -speed / ACTION_S, (self.vmax - speed) / ACTION_S)
-        set_acceleration = self.sim.ls.vehicle.setAcceleration
+        accel = kernels.accelerations(action, is_car, speed, _CAR_MPS2, _HEAVY_MPS2, self.vmax, ACTION_S)
+        set_acceleration = _raw().vehicle_setAcceleration  # libsumo's C setter (its Python wrapper adds a frame per vehicle)
         for v, a in zip(ids, accel.tolist()):
             set_acceleration(v, a, ACTION_S)
 
     def individual_state(self, snap, dist: np.ndarray) -> np.ndarray:
         """[vel / vel_max, pos / 200 m, fveh_dist / 200 m, fveh_vel / vel_max] (-1: no front vehicle), [n, 4]."""
-        # the four terms in one array, so one division and one `where` for all (vel and pos are never negative:
-        # only a missing front vehicle's -1 is kept as -1)
-        terms = np.array([snap.speed, dist, snap.leader_dist, snap.leader_speed])
-        scale = np.array([[self.vmax], [POS_SCALE_M], [LEADER_SCALE_M], [self.vmax]])
-        return np.where(terms >= 0, terms / scale, -1.0).T
+        return kernels.individual_state(snap.speed, dist, snap.leader_dist, snap.leader_speed, self.vmax, KERNEL_PARAMS)
 
-    def _state_reward(self, snap, junction: np.ndarray, road_code: np.ndarray, internal: np.ndarray, route: np.ndarray, dist: np.ndarray):
+    def _state_reward(self, snap, junction: np.ndarray, road_code: np.ndarray, internal: np.ndarray, route: np.ndarray, dist: np.ndarray,
+                      centre_dist: np.ndarray):
         """State (Eq 4.2; i-MARL: its first 4 terms) and non-terminal reward of every vehicle (route: route rows)."""
-        index = self.sim.index
-        centre_dist = index.centre_dist(snap.lane_code, snap.lane_pos)
-        col_term, density = junction_terms(junction, road_code, centre_dist, snap.speed, index.incoming_lanes)
         if self.shield:
             self._masks = self._shield(snap, junction, road_code, internal, route, centre_dist, dist)
-        state = np.empty((len(dist), STATE_DIM[self.variant]), np.float32)  # filled column-wise: no stacking, one cast
-        state[:, :4] = self.individual_state(snap, dist)
-        if state.shape[1] == 6:
-            state[:, 4], state[:, 5] = col_term, density
-        return state, reward(self.variant, snap.speed, self.vmax, snap.leader_dist, col_term)
+        return kernels.state_reward(self.variant == "col", snap.speed, dist, snap.leader_dist, snap.leader_speed, junction, road_code,
+                                    centre_dist, self.sim.index.incoming_lanes, self.vmax, _rule_code(None), KERNEL_PARAMS)
 
     def _shield(self, snap, junction: np.ndarray, road_code: np.ndarray, internal: np.ndarray, route: np.ndarray, centre_dist: np.ndarray,
                 dist: np.ndarray) -> np.ndarray:

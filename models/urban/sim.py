@@ -19,6 +19,7 @@ import numpy as np
 
 from sumolib.geomhelper import polygonOffsetWithMinimumDistanceToPoint
 
+from models.urban import kernels
 from models.urban.network import UrbanInputError, read_net
 from models.urban.scenarios import MIN_GAP_M, VEHICLE_TYPES
 
@@ -83,10 +84,6 @@ class NetIndex:
         length, centre, junction, road, internal = zip(*self._rows)
         self.lane_len, self.lane_centre_m = np.array(length, float), np.array(centre, float)
         self.lane_junction, self.lane_road, self.lane_internal = np.array(junction, int), np.array(road, int), np.array(internal, bool)
-
-    def centre_dist(self, lane_code: np.ndarray, lane_pos: np.ndarray) -> np.ndarray:
-        """inter_dist of Eq 4.1: the distance (m) still to drive to the centre of the junction ahead, 0 once past it."""
-        return np.maximum(self.lane_centre_m[lane_code] - lane_pos, 0.0)
 
     def junction_of(self, road: str) -> int:
         """Junction a vehicle on `road` drives to; on an internal edge (':J_3') the junction it is inside."""
@@ -191,6 +188,7 @@ class Simulation:
         self.ls, self.tally = ls, Tally()
         self.new_collisions: set = set()
         self.new_teleports: set = set()
+        self.on_road = 0  # vehicles SUMO lists (vehicle.getIDList)
 
     def advance(self, seconds: float) -> list:
         """Simulate `seconds` in sub-steps; returns the vehicles that departed meanwhile."""
@@ -215,64 +213,51 @@ class Simulation:
                     tally.collision_types[col.type] = tally.collision_types.get(col.type, 0) + 1
                     self.new_collisions |= pair
                 tally.collided |= pair
-            for v in raw.simulation_getStartingTeleportIDList():
+            teleports = raw.simulation_getStartingTeleportIDList()
+            for v in teleports:
                 tally.teleported.add(v)
                 self.new_teleports.add(v)
             for v in arrived:
                 if v not in tally.collided:
                     tally.arrive[v] = t
-            tally.vehicle_substeps += raw.vehicle_getIDCount()
+            # vehicle.getIDCount, counted from the events instead (it builds SUMO's whole id list: µs per sub-step; a
+            # vehicle being teleported is off the list, one removed after a collision is among the arrived)
+            self.on_road += len(new) - len(arrived) - len(teleports) + len(raw.simulation_getEndingTeleportIDList())
+            tally.vehicle_substeps += self.on_road
         return departed
 
     def snapshot(self, positions: bool = True) -> Snapshot:
         """All vehicles now, read once per decision with libsumo getters (subscriptions are recomputed by SUMO at
         every 0.2 s sub-step, and a context subscription set for the last sub-step only costs more than it saves:
         measured), one `map` per getter over all vehicles; also samples speed and fuel for the metrics.
-        positions=False leaves x, y and accel as NaN (two getters fewer per vehicle: the RL state does not use them)."""
+        positions=False leaves x, y and accel as NaN (two getters fewer per vehicle: the RL state does not use them).
+        The per-vehicle numbers go into one array with one `fromiter`: with a handful of vehicles, numpy's cost per call,
+        not per vehicle, is what a decision pays."""
         raw, index = _raw(), self.index
         ids = list(raw.vehicle_getIDList())
+        speed = list(map(raw.vehicle_getSpeed, ids))
+        if speed and min(speed) < 0:  # vehicles being teleported are off the network (speed = SUMO's invalid value): left out
+            ids, speed = [v for v, s in zip(ids, speed) if s >= 0], [s for s in speed if s >= 0]
         n = len(ids)
         lane = list(map(raw.vehicle_getLaneID, ids))
-        # speed, position on the lane, route index and fuel rate as the rows of one array
-        numbers = np.fromiter(itertools.chain(map(raw.vehicle_getSpeed, ids), map(raw.vehicle_getLanePosition, ids),
-                                              map(raw.vehicle_getRouteIndex, ids), map(raw.vehicle_getFuelConsumption, ids)), float, 4 * n)
-        numbers = numbers.reshape(4, n)
-        leaders = list(map(raw.vehicle_getLeader, ids, itertools.repeat(LEADER_LOOKAHEAD_M)))  # (id or "", distance)
+        leader, leader_d = zip(*map(raw.vehicle_getLeader, ids, itertools.repeat(LEADER_LOOKAHEAD_M))) if n else ((), ())  # id or "", distance
+        # rows: speed, position on the lane, route index, fuel rate, fuel density, lane code, leader?, leader distance, leader speed
+        # (-1: none); C-level maps only: no Python frame per vehicle
+        rows = np.fromiter(itertools.chain(
+            speed, map(raw.vehicle_getLanePosition, ids), map(raw.vehicle_getRouteIndex, ids), map(raw.vehicle_getFuelConsumption, ids),
+            map(_fuel_density, ids), map(index.lane_codes.__getitem__, lane), map(bool, leader), leader_d,
+            map(dict(zip(ids, speed)).get, leader, itertools.repeat(-1.0))), float, 9 * n).reshape(9, n)
+        code, route_index, lane_len, fuel_mlps, leader_dist = kernels.snapshot_columns(rows, index.lane_len, MIN_GAP_M)
         if positions:
             x, y = np.array(list(map(raw.vehicle_getPosition, ids)), float).reshape(-1, 2).T
             accel = np.fromiter(map(raw.vehicle_getAcceleration, ids), float, n)
         else:
             x = y = accel = np.full(n, np.nan)  # one array for the three (nobody writes into a snapshot)
-        if n and numbers[0].min() < 0:  # vehicles being teleported are off the network (speed = SUMO's invalid value): left out
-            keep = np.flatnonzero(numbers[0] >= 0)
-            ids, lane, leaders = ([v[i] for i in keep] for v in (ids, lane, leaders))
-            numbers, x, y, accel, n = numbers[:, keep], x[keep], y[keep], accel[keep], len(keep)
-        speed, lane_pos, route_index, fuel = numbers
-        code = np.fromiter(map(index.lane_codes.__getitem__, lane), int, n)
-        speed_of = dict(zip(ids, speed.tolist()))
-        snap = Snapshot(
-            t=raw.simulation_getTime(),
-            ids=ids,
-            speed=speed,
-            lane_pos=lane_pos,
-            lane_len=index.lane_len[code],
-            lane=lane,
-            lane_code=code,
-            route_index=route_index.astype(int),
-            x=x,
-            y=y,
-            accel=accel,
-            fuel_mgps=fuel,
-            # getLeader's distance excludes the follower's minGap: add it back so the gap is bumper to bumper
-            # (otherwise a leader closer than minGap would read as negative, i.e. as "no leader")
-            leader_dist=np.array([max(d + MIN_GAP_M, 0.0) if ld else -1.0 for ld, d in leaders], float),
-            leader_speed=np.array([speed_of.get(ld, -1.0) for ld, _ in leaders], float),
-        )
-        density = np.fromiter(map(_fuel_density, ids), float, n)
-        self.tally.speed_sum += float(speed.sum())
-        self.tally.fuel_ml_sum += float((fuel / density).sum()) if ids else 0.0
+        self.tally.speed_sum += float(rows[0].sum())
+        self.tally.fuel_ml_sum += float(fuel_mlps.sum())
         self.tally.samples += n
-        return snap
+        return Snapshot(t=raw.simulation_getTime(), ids=ids, speed=rows[0], lane_pos=rows[1], lane_len=lane_len, lane=lane, lane_code=code,
+                        route_index=route_index, x=x, y=y, accel=accel, fuel_mgps=rows[3], leader_dist=leader_dist, leader_speed=rows[8])
 
     def waiting_s(self, ids: list) -> np.ndarray:
         """SUMO's waiting time of these vehicles (s spent below 0.1 m/s since they last moved), with its C getter."""
@@ -284,7 +269,8 @@ class Simulation:
 
     @property
     def done(self) -> bool:
-        return self.ls.simulation.getMinExpectedNumber() == 0 or self.time >= self.max_time_s
+        raw = _raw()
+        return raw.simulation_getMinExpectedNumber() == 0 or raw.simulation_getTime() >= self.max_time_s
 
     def close(self) -> None:
         self.ls.close()

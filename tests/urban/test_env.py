@@ -5,10 +5,11 @@ import hashlib
 import numpy as np
 import pytest
 
+from models.urban import kernels
 from models.urban.col_marl import EpisodeJob, RouteAgentsQ, numpy_params, run_episode
 from models.urban.env import GOAL_REWARD, UrbanParallelEnv, junction_terms, reward, safe_dist
 from models.urban.network import UrbanInputError, read_net
-from models.urban.sim import LEADER_LOOKAHEAD_M, NetIndex, ScenarioFiles, Simulation, run_sumo_model
+from models.urban.sim import LEADER_LOOKAHEAD_M, SPEED_MODE_CAR_FOLLOWING, STEP_S, NetIndex, ScenarioFiles, Simulation, run_sumo_model
 
 from models.urban.scenarios import MIN_GAP_M
 from urban_fixtures import crossing_copy, hand_copy, make_copy
@@ -31,6 +32,25 @@ def test_forced_crossing_is_a_collision(tmp_path, sc1_net):
     assert penalties == {"r000.car.0": -GOAL_REWARD, "r001.car.1": -GOAL_REWARD}
 
 
+def test_vehicles_on_the_road_are_counted_from_the_events(tmp_path, sc1_net):
+    # the vehicle-steps of a run (the bench's figure) add up SUMO's vehicle count after every sub-step, kept from the
+    # departures, arrivals (removed colliders among them) and teleports rather than asked of getIDCount each time
+    collided = []
+    for files, speed_mode in [(crossing_copy(tmp_path / "cross", sc1_net), SPEED_MODE_CAR_FOLLOWING),
+                              (make_copy(tmp_path / "c", sc1_net, 20, 40.0)[0], None)]:
+        sim = Simulation(files, model="Krauss", seed=0, speed_mode=speed_mode)
+        sim.start()
+        counted = 0
+        while not sim.done:
+            sim.advance(STEP_S)
+            assert sim.on_road == sim.ls.vehicle.getIDCount()
+            counted += sim.on_road
+        assert sim.tally.vehicle_substeps == counted > 0
+        collided.append(len(sim.tally.collided))
+        sim.close()
+    assert collided == [2, 0]  # the forced crossing: both vehicles removed (and listed as arrived)
+
+
 def test_sumo_idm_obeys_right_before_left_on_the_same_crossing(tmp_path, sc1_net):
     metrics, _ = run_sumo_model(crossing_copy(tmp_path / "cross", sc1_net), 2, "IDM", 0)
     assert metrics["collisions"] == 0 and metrics["arrived"] == 2 and metrics["success"]
@@ -49,17 +69,25 @@ def test_junction_terms_and_reward():
 
 
 
+def _centre_dist(index, lane: str, pos: list) -> np.ndarray:
+    """inter_dist as the env reads it (kernels.lane_facts) for vehicles at these positions on `lane`, far from their goal."""
+    n = len(pos)
+    codes, zeros = np.full(n, index.lane_codes[lane]), np.zeros(n, np.int64)
+    return kernels.lane_facts(codes, np.array(pos), zeros, zeros, np.array([99]), index.lane_road, index.lane_junction, index.lane_internal,
+                              index.lane_len, index.lane_centre_m)[4]
+
+
 def test_inter_dist_is_the_distance_to_the_junction_centre(sc1_net):
     index = NetIndex(str(sc1_net))
     centre = np.array(read_net(sc1_net).getNode("A0").getCoord())
     end = np.array(read_net(sc1_net).getLane("left0A0_0").getShape()[-1])
     length = index.lane_length["left0A0_0"]
     # on the approach: the rest of the lane plus the lane end's distance to the centre (Eq 4.1), not the lane end
-    approach = index.centre_dist(np.array([index.lane_codes["left0A0_0"]] * 2), np.array([length - 50.0, length]))
+    approach = _centre_dist(index, "left0A0_0", [length - 50.0, length])
     np.testing.assert_allclose(approach, [50.0 + np.linalg.norm(end - centre), np.linalg.norm(end - centre)], rtol=1e-6)
     assert 5.0 < approach[1] < 10.0
     # inside the junction, straight on (:A0_10 from the left to the right): the centre is halfway; 0 once past it
-    inside = index.centre_dist(np.array([index.lane_codes[":A0_10_0"]] * 3), np.array([0.0, 7.2, 12.0]))
+    inside = _centre_dist(index, ":A0_10_0", [0.0, 7.2, 12.0])
     np.testing.assert_allclose(inside, [7.2, 0.0, 0.0], atol=0.05)
 
 

@@ -1,0 +1,185 @@
+"""The urban env's per-decision arithmetic as numba kernels (issue 4: the env's vehicle-steps per second against plain
+SUMO's on Sc1): the lane facts, state (Eq 4.2) and reward (Eq 4.3-4.7, i-MARL's Eq 3.2-3.3) of every vehicle, a
+snapshot's derived columns, the held accelerations and the rollout's Q-network layers.
+
+With a handful of vehicles on the road (Sc1: ~16) the numpy version was dozens of calls per 1 s decision on arrays of
+that size, each costing its 1-3 µs whatever the size: a kernel makes one pass over the vehicles instead. Each
+computation has one implementation, here; models.urban.env's `conflict_matrix`, `junction_terms`, `safe_dist` and
+`reward` call these kernels. Results are bit for bit those of the numpy code they replaced: the same float operations
+in the same order (tests/urban/test_env.py's recorded episodes, tests/urban/test_kernels.py).
+
+Caching as in models.dcb.kernels (whose `_jit` this module uses): numba keeps the machine code in __pycache__ beside
+this file (or NUMBA_CACHE_DIR, ~/.cache/numba); a process that finds none compiles them, ~5-10 s on 2 cores (11.7 s
+measured at a load average of 3.5), once. A cache is invalidated only by a change of this file, so the kernels import
+nothing else from the project and take the env's constants as arguments (`params`, a tuple in the order of `PARAMS`).
+No kernel is recursive: numba's cache of a recursive function crashed the process when loaded (measured).
+"""
+
+import numpy as np
+
+from models.dcb.kernels import _jit
+
+# the floats in `params`, in order (models.urban.env.KERNEL_PARAMS builds the tuple from the env's constants)
+PARAMS = ("safe_dist_m", "safe_headway_s", "action_s", "max_brake_mps2", "c1", "c2", "c3", "beta1", "beta2", "min_fveh_dist_m",
+          "max_f_d", "inter_time_s", "pos_scale_m", "leader_scale_m")
+RULES = ("thesis", "headway", "stopping")  # safe_dist rule codes
+
+
+@_jit
+def lane_facts(lane_code, lane_pos, route_index, route, route_edges, lane_road, lane_junction, lane_internal, lane_len, lane_centre_m):
+    """Per vehicle, from its lane's row of NetIndex's tables: road code, junction ahead or under it (-1: none, or the
+    vehicle is on its route's last road), inside a junction?, distance to the stop line (0 inside), inter_dist (Eq 4.1:
+    to the junction's centre, 0 once past it) and on its last road? (route: route rows, route_edges: edges per route)."""
+    n = lane_code.size
+    road, junction = np.empty(n, np.int64), np.empty(n, np.int64)
+    internal, last_road = np.empty(n, np.bool_), np.empty(n, np.bool_)
+    dist, centre_dist = np.empty(n), np.empty(n)
+    for i in range(n):
+        c = lane_code[i]
+        road[i], internal[i] = lane_road[c], lane_internal[c]
+        last_road[i] = route_index[i] >= route_edges[route[i]] - 1 and not internal[i]
+        junction[i] = -1 if last_road[i] else lane_junction[c]
+        dist[i] = 0.0 if internal[i] else max(lane_len[c] - lane_pos[i], 0.0)
+        centre_dist[i] = max(lane_centre_m[c] - lane_pos[i], 0.0)
+    return road, junction, internal, dist, centre_dist, last_road
+
+
+@_jit
+def conflict_matrix(junction, road, centre_dist_m, speed, inter_time_s):
+    """[n, n]: vehicle i is predicted to collide with j (see models.urban.env.conflict_matrix)."""
+    n = junction.size
+    inter_time = np.empty(n)
+    for i in range(n):
+        inter_time[i] = centre_dist_m[i] / max(speed[i], 0.1)
+    out = np.zeros((n, n), np.bool_)
+    for i in range(n):
+        if junction[i] < 0:
+            continue
+        for j in range(n):
+            out[i, j] = junction[j] == junction[i] and road[j] != road[i] and abs(inter_time[i] - inter_time[j]) < inter_time_s
+    return out
+
+
+@_jit
+def junction_terms(junction, road, centre_dist_m, speed, incoming_lanes, inter_time_s):
+    """col_term and density of every vehicle (Eq 4.2, §4.2.1): predicted collisions > 0, and their count per incoming lane."""
+    conflict = conflict_matrix(junction, road, centre_dist_m, speed, inter_time_s)
+    n = junction.size
+    col_term, density = np.zeros(n), np.zeros(n)
+    for i in range(n):
+        count = conflict[i].sum()
+        col_term[i] = 1.0 if count > 0 else 0.0
+        if junction[i] >= 0:
+            density[i] = count / incoming_lanes[junction[i]]
+    return col_term, density
+
+
+@_jit(inline="always")
+def _safe_dist(v, rule, params):
+    safe_m, headway_s, action_s, brake_mps2 = params[0], params[1], params[2], params[3]
+    if rule == 0:
+        return safe_m
+    if rule == 1:
+        return max(safe_m, v * headway_s)
+    return max(safe_m, v * action_s + v**2 / (2 * brake_mps2))
+
+
+@_jit
+def safe_dist(speed, rule, params):
+    """safe_dist of Eq 4.5-4.7 / Eq 3.3 per vehicle; rule: code in RULES."""
+    out = np.empty(speed.size)
+    for i in range(speed.size):
+        out[i] = _safe_dist(speed[i], rule, params)
+    return out
+
+
+@_jit
+def reward(col, speed, vmax, fveh_dist, col_term, rule, params):
+    """Non-terminal reward of every vehicle: col-MARL's Eq 4.4-4.7 (col) or i-MARL's Eq 3.2-3.3 with C = 1."""
+    c1, c2, c3, beta1, beta2, min_d, max_f_d = params[4], params[5], params[6], params[7], params[8], params[9], params[10]
+    out = np.empty(speed.size)
+    for i in range(speed.size):
+        fv, sd, d = speed[i] / vmax, _safe_dist(speed[i], rule, params), fveh_dist[i]
+        near = d >= 0 and d < sd
+        if not col:
+            out[i] = -(beta2 + fv) * (sd - d) if near else beta1 * fv
+            continue
+        f_d = min(sd / max(min(d, sd), min_d), max_f_d)
+        if col_term[i] > 0:
+            out[i] = -(c3 + fv) * f_d if near else -(c2 + fv)
+        else:
+            out[i] = -(c1 + fv) * f_d if near else fv
+    return out
+
+
+@_jit(inline="always")
+def _scaled(term, scale):
+    return term / scale if term >= 0 else -1.0  # -1: no front vehicle (speed and pos are never negative)
+
+
+@_jit
+def individual_state(speed, dist, leader_dist, leader_speed, vmax, params):
+    """[vel / vel_max, pos / pos scale, fveh_dist / leader scale, fveh_vel / vel_max] of every vehicle, [n, 4]."""
+    pos_scale, leader_scale = params[12], params[13]
+    out = np.empty((speed.size, 4))
+    for i in range(speed.size):
+        out[i, 0], out[i, 1] = _scaled(speed[i], vmax), _scaled(dist[i], pos_scale)
+        out[i, 2], out[i, 3] = _scaled(leader_dist[i], leader_scale), _scaled(leader_speed[i], vmax)
+    return out
+
+
+@_jit
+def state_reward(col, speed, dist, leader_dist, leader_speed, junction, road, centre_dist_m, incoming_lanes, vmax, rule, params):
+    """State (float32; col: Eq 4.2's 6 terms, else its first 4) and non-terminal reward of every vehicle."""
+    state = np.empty((speed.size, 6 if col else 4), np.float32)
+    state[:, :4] = individual_state(speed, dist, leader_dist, leader_speed, vmax, params)
+    col_term = np.zeros(speed.size)
+    if col:
+        col_term, density = junction_terms(junction, road, centre_dist_m, speed, incoming_lanes, params[11])
+        state[:, 4], state[:, 5] = col_term, density
+    return state, reward(col, speed, vmax, leader_dist, col_term, rule, params)
+
+
+@_jit
+def dense(x, w, b, agent):
+    """x [n, i] -> x w[agent] + b[agent], [n, o]: one dense layer of each row's own route agent (weights stacked as
+    [agent, i, o]); float32, summed over i in order as np.einsum does (the same Q values to the bit)."""
+    n, o = x.shape[0], w.shape[2]
+    out = np.zeros((n, o), np.float32)
+    for r in range(n):
+        k = agent[r]
+        for m in range(x.shape[1]):
+            xm = x[r, m]
+            for j in range(o):
+                out[r, j] += xm * w[k, m, j]
+        for j in range(o):
+            out[r, j] += b[k, j]
+    return out
+
+
+@_jit
+def accelerations(action, is_car, speed, car_mps2, heavy_mps2, vmax, action_s):
+    """Table 4.1's acceleration of each vehicle's action, clipped so that 0 <= speed <= vmax over the held action."""
+    out = np.empty(action.size)
+    for i in range(action.size):
+        a = car_mps2[action[i]] if is_car[i] else heavy_mps2[action[i]]
+        low, high = -speed[i] / action_s, (vmax - speed[i]) / action_s
+        a = a if a > low else low  # np.clip's comparisons: clipping 0 at -0.0 gives -0.0, as SUMO was told before
+        out[i] = a if a < high else high
+    return out
+
+
+@_jit
+def snapshot_columns(rows, lane_len, min_gap_m):
+    """The columns of a snapshot that follow from the getters' rows (models.urban.sim.Simulation.snapshot): lane code and
+    route index as integers, lane length, fuel volume rate (ml/s) and the leader's bumper-to-bumper gap (-1: no leader;
+    getLeader's distance excludes the follower's minGap, added back: a leader closer than minGap is not "no leader")."""
+    n = rows.shape[1]
+    code, route_index = np.empty(n, np.int64), np.empty(n, np.int64)
+    length, fuel_mlps, leader_dist = np.empty(n), np.empty(n), np.empty(n)
+    for i in range(n):
+        code[i], route_index[i] = int(rows[5, i]), int(rows[2, i])
+        length[i], fuel_mlps[i] = lane_len[code[i]], rows[3, i] / rows[4, i]
+        gap = rows[7, i] + min_gap_m
+        leader_dist[i] = (0.0 if 0.0 > gap else gap) if rows[6, i] > 0 else -1.0  # Python's max(gap, 0.0), as it was
+    return code, route_index, length, fuel_mlps, leader_dist

@@ -10,29 +10,18 @@ operations in the same order (sums in entry order, as np.bincount's), the same r
 
 Compiling them all takes ~19 s on 2 cores (~9-16 s before CoordinatedQ's kernels), once: numba caches the machine code in __pycache__ beside this file (git-ignored),
 or where that is not writable in NUMBA_CACHE_DIR or numba's user-wide cache directory (~/.cache/numba); where none
-is writable, every process compiles again (numba would refuse to define a cached function at all, hence `_jit`).
+is writable, every process compiles again (numba would refuse to define a cached function at all, hence models.jit).
 The cache of a function is invalidated only by a change of its own file: so all kernels live in this one module,
 which imports nothing from the others, and take the constants they use as arguments (a kernel calling a kernel or
 reading a constant of another module would keep its stale compiled code after that module changed).
 """
 
 import numpy as np
-from numba import njit
+
+from models.jit import jit
 
 
-def _jit(fn=None, **options):
-    """njit with numba's on-disk cache where numba finds a writable cache directory, without it elsewhere."""
-    if fn is None:
-        return lambda f: _jit(f, **options)
-    try:
-        return njit(cache=True, **options)(fn)
-    except RuntimeError as e:  # "cannot cache function ...: no locator available for file ..."
-        if "no locator" not in str(e):
-            raise
-        return njit(**options)(fn)
-
-
-@_jit(inline="always")
+@jit(inline="always")
 def _key(e, shifted, key_base, whole_min, flight, delay_min, within_hour):
     """Sector-hour key of entry e: ⌊(minute + d) / 60⌋ in its sector's block of hours; within_hour: the shift of
     `_Entries.shifted`, the same for delays in [0, 60]."""
@@ -41,7 +30,7 @@ def _key(e, shifted, key_base, whole_min, flight, delay_min, within_hour):
     return key_base[e] + (whole_min[e] + delay_min[flight[e]]) // 60
 
 
-@_jit
+@jit
 def entry_keys(shifted, key_base, whole_min, flight, delay_min, within_hour):
     key = np.empty(flight.size, dtype=np.int64)
     for e in range(flight.size):
@@ -49,7 +38,7 @@ def entry_keys(shifted, key_base, whole_min, flight, delay_min, within_hour):
     return key
 
 
-@_jit
+@jit
 def evaluate(delay_min, shifted, key_base, whole_min, flight, dur_min, within_hour, capacity, n_hours, n_flights, max_delay, all_entries,
              hot_entries):
     """(status, `Evaluation`'s arrays) in two passes over the entries; status 1: with all_entries, an entry in the grid's
@@ -94,7 +83,7 @@ def evaluate(delay_min, shifted, key_base, whole_min, flight, dur_min, within_ho
     return status, counts, hot, key, entry_hot, h, tdc, hot_key[:n_hot], hot_flight[:n_hot]
 
 
-@_jit
+@jit
 def thesis_reward(congested_min, delay_cost, delay_min, cost_per_min, c_plus):
     """Eq 5.2-5.4 (`DCBProblem.reward`), element by element with the operations of the numpy expression it replaced."""
     r = np.empty(congested_min.size)
@@ -104,7 +93,7 @@ def thesis_reward(congested_min, delay_cost, delay_min, cost_per_min, c_plus):
     return r
 
 
-@_jit
+@jit
 def local_state(delay_min, hotspots, extra, state_step, n_extra, h_cap):
     """`Level.state` (extra: x_i, read only when n_extra > 1)."""
     s = np.empty(delay_min.size, dtype=np.int64)
@@ -113,7 +102,7 @@ def local_state(delay_min, hotspots, extra, state_step, n_extra, h_cap):
     return s
 
 
-@_jit
+@jit
 def q_values(q, state, agents):
     """`IndependentQ.values`: Q_i(s_i, ·) of the agents -> [agents, 2]."""
     out = np.empty((agents.size, 2))
@@ -122,7 +111,7 @@ def q_values(q, state, agents):
     return out
 
 
-@_jit
+@jit
 def q_update(q, state, action, reward, next_state, agents, lr, gamma):
     """`IndependentQ.update`: Eq 5.6 for every agent, in place (one row per agent: no two agents share a cell)."""
     for i in agents:
@@ -132,7 +121,7 @@ def q_update(q, state, action, reward, next_state, agents, lr, gamma):
         q[i, state[i], action[i]] = old + lr * (target - old)
 
 
-@_jit
+@jit
 def act(delay, agents, q, explore_draw, coin, eps, action_step):
     """ε-greedy actions of the agents (explore where the draw is below ε: the coin; else greedy, ties hold: no delay
     without a reason) -> (action [flight], the minutes it adds, the new delays)."""
@@ -143,7 +132,7 @@ def act(delay, agents, q, explore_draw, coin, eps, action_step):
     return action, added, delay + added
 
 
-@_jit
+@jit
 def independent_episode(rng, q, delay, state, agents, hotspots, eps, n_steps, action_step, state_step, learn, lr, gamma, delay_cost,
                         entries, h_cap, cost_per_min, c_plus):
     """`train.run_episode` for MIRL (IndependentQ) with the thesis state and reward from its first step on: the same
@@ -164,7 +153,7 @@ def independent_episode(rng, q, delay, state, agents, hotspots, eps, n_steps, ac
     return delay, hotspots
 
 
-@_jit
+@jit
 def peer_graph(hot_key, hot_flight, n_flights):
     """`cmarl.peer_edges`: the unique pairs i < j of flights with a hot entry in the same hotspot, in increasing order
     of i·n + j, and every flight's degree |N(A_i)| -> (edges [2, E]: i, j; degree). Flight by flight in increasing
@@ -210,7 +199,7 @@ def peer_graph(hot_key, hot_flight, n_flights):
     return edges[:, :n_edges], degree
 
 
-@_jit
+@jit
 def joint_q(tables, state_map, level_states, edges, n_flights, state, golden, table_bits):
     """`CoordinatedQ`'s lookup of Q_ij(s_ij, ·) on every edge: for each table level l (stacked in `tables`, 2^table_bits
     rows each), row = (key·golden mod 2^64) >> (64 - table_bits) of key = ((i·n + j)·S_l + φ_l(s_i))·S_l + φ_l(s_j),
@@ -236,13 +225,13 @@ def joint_q(tables, state_map, level_states, edges, n_flights, state, golden, ta
     return level_rows[0], q
 
 
-@_jit(inline="always")
+@jit(inline="always")
 def _maximum(a, b):
     """np.maximum of two numbers."""
     return a if a >= b else b
 
 
-@_jit
+@jit
 def coordinated_values(q, edges, n_flights, agents):
     """Eq 5.9 (`CoordinatedQ.values`): Q_i(s_i, a_i) = ½ Σ_j max_{a_j} Q_ij of the agents from their edges' Q_ij (q) -> [agents, 2].
     The sums run in edge order per flight and side (i end, j end), as the np.bincount they replaced."""
@@ -260,7 +249,7 @@ def coordinated_values(q, edges, n_flights, agents):
     return out
 
 
-@_jit
+@jit
 def coordinated_update(tables, state_map, level_states, edges, degree, n_flights, rows, q, action, reward, next_state, lr, gamma,
                        golden, table_bits):
     """Eq 5.7 (`CoordinatedQ.update`) on every edge, in place in level 0 of `tables`: rows and q are the edges' `joint_q`
@@ -277,7 +266,7 @@ def coordinated_update(tables, state_map, level_states, edges, degree, n_flights
         tables[rows[e], 2 * action[edges[0, e]] + action[edges[1, e]]] += step[e]
 
 
-@_jit
+@jit
 def coordinated_episode(rng, tables, state_map, level_states, golden, table_bits, delay, state, agents, hot_key, hot_flight, hotspots, eps,
                         n_steps, action_step, state_step, learn, lr, gamma, delay_cost, entries, h_cap, cost_per_min, c_plus):
     """`train.run_episode` for CMARL and HCMARL (CoordinatedQ) with the thesis state and reward, as `independent_episode`

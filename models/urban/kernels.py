@@ -8,7 +8,7 @@ computation has one implementation, here; models.urban.env's `conflict_matrix`, 
 `reward` call these kernels. Results are bit for bit those of the numpy code they replaced: the same float operations
 in the same order (tests/urban/test_env.py's recorded episodes, tests/urban/test_kernels.py).
 
-Caching as in models.dcb.kernels (whose `_jit` this module uses): numba keeps the machine code in __pycache__ beside
+Caching as in models.dcb.kernels (both use models.jit): numba keeps the machine code in __pycache__ beside
 this file (or NUMBA_CACHE_DIR, ~/.cache/numba); a process that finds none compiles them, ~5-10 s on 2 cores (11.7 s
 measured at a load average of 3.5), once. A cache is invalidated only by a change of this file, so the kernels import
 nothing else from the project and take the env's constants as arguments (`params`, a tuple in the order of `PARAMS`).
@@ -17,7 +17,7 @@ No kernel is recursive: numba's cache of a recursive function crashed the proces
 
 import numpy as np
 
-from models.dcb.kernels import _jit
+from models.jit import jit
 
 # the floats in `params`, in order (models.urban.env.KERNEL_PARAMS builds the tuple from the env's constants)
 PARAMS = ("safe_dist_m", "safe_headway_s", "action_s", "max_brake_mps2", "c1", "c2", "c3", "beta1", "beta2", "min_fveh_dist_m",
@@ -25,7 +25,7 @@ PARAMS = ("safe_dist_m", "safe_headway_s", "action_s", "max_brake_mps2", "c1", "
 RULES = ("thesis", "headway", "stopping")  # safe_dist rule codes
 
 
-@_jit
+@jit
 def lane_facts(lane_code, lane_pos, route_index, route, route_edges, lane_road, lane_junction, lane_internal, lane_len, lane_centre_m):
     """Per vehicle, from its lane's row of NetIndex's tables: road code, junction ahead or under it (-1: none, or the
     vehicle is on its route's last road), inside a junction?, distance to the stop line (0 inside), inter_dist (Eq 4.1:
@@ -44,7 +44,7 @@ def lane_facts(lane_code, lane_pos, route_index, route, route_edges, lane_road, 
     return road, junction, internal, dist, centre_dist, last_road
 
 
-@_jit
+@jit
 def conflict_matrix(junction, road, centre_dist_m, speed, inter_time_s):
     """[n, n]: vehicle i is predicted to collide with j (see models.urban.env.conflict_matrix)."""
     n = junction.size
@@ -60,7 +60,7 @@ def conflict_matrix(junction, road, centre_dist_m, speed, inter_time_s):
     return out
 
 
-@_jit
+@jit
 def junction_terms(junction, road, centre_dist_m, speed, incoming_lanes, inter_time_s):
     """col_term and density of every vehicle (Eq 4.2, §4.2.1): predicted collisions > 0, and their count per incoming lane."""
     conflict = conflict_matrix(junction, road, centre_dist_m, speed, inter_time_s)
@@ -74,7 +74,7 @@ def junction_terms(junction, road, centre_dist_m, speed, incoming_lanes, inter_t
     return col_term, density
 
 
-@_jit(inline="always")
+@jit(inline="always")
 def _safe_dist(v, rule, params):
     safe_m, headway_s, action_s, brake_mps2 = params[0], params[1], params[2], params[3]
     if rule == 0:
@@ -84,7 +84,7 @@ def _safe_dist(v, rule, params):
     return max(safe_m, v * action_s + v**2 / (2 * brake_mps2))
 
 
-@_jit
+@jit
 def safe_dist(speed, rule, params):
     """safe_dist of Eq 4.5-4.7 / Eq 3.3 per vehicle; rule: code in RULES."""
     out = np.empty(speed.size)
@@ -93,7 +93,7 @@ def safe_dist(speed, rule, params):
     return out
 
 
-@_jit
+@jit
 def reward(col, speed, vmax, fveh_dist, col_term, rule, params):
     """Non-terminal reward of every vehicle: col-MARL's Eq 4.4-4.7 (col) or i-MARL's Eq 3.2-3.3 with C = 1."""
     c1, c2, c3, beta1, beta2, min_d, max_f_d = params[4], params[5], params[6], params[7], params[8], params[9], params[10]
@@ -112,12 +112,12 @@ def reward(col, speed, vmax, fveh_dist, col_term, rule, params):
     return out
 
 
-@_jit(inline="always")
+@jit(inline="always")
 def _scaled(term, scale):
     return term / scale if term >= 0 else -1.0  # -1: no front vehicle (speed and pos are never negative)
 
 
-@_jit
+@jit
 def individual_state(speed, dist, leader_dist, leader_speed, vmax, params):
     """[vel / vel_max, pos / pos scale, fveh_dist / leader scale, fveh_vel / vel_max] of every vehicle, [n, 4]."""
     pos_scale, leader_scale = params[12], params[13]
@@ -128,7 +128,7 @@ def individual_state(speed, dist, leader_dist, leader_speed, vmax, params):
     return out
 
 
-@_jit
+@jit
 def state_reward(col, speed, dist, leader_dist, leader_speed, junction, road, centre_dist_m, incoming_lanes, vmax, rule, params):
     """State (float32; col: Eq 4.2's 6 terms, else its first 4) and non-terminal reward of every vehicle."""
     state = np.empty((speed.size, 6 if col else 4), np.float32)
@@ -140,7 +140,7 @@ def state_reward(col, speed, dist, leader_dist, leader_speed, junction, road, ce
     return state, reward(col, speed, vmax, leader_dist, col_term, rule, params)
 
 
-@_jit
+@jit
 def dense(x, w, b, agent):
     """x [n, i] -> x w[agent] + b[agent], [n, o]: one dense layer of each row's own route agent (weights stacked as
     [agent, i, o]); float32, summed over i in order as np.einsum does (the same Q values to the bit)."""
@@ -157,7 +157,7 @@ def dense(x, w, b, agent):
     return out
 
 
-@_jit
+@jit
 def accelerations(action, is_car, speed, car_mps2, heavy_mps2, vmax, action_s):
     """Table 4.1's acceleration of each vehicle's action, clipped so that 0 <= speed <= vmax over the held action."""
     out = np.empty(action.size)
@@ -169,7 +169,7 @@ def accelerations(action, is_car, speed, car_mps2, heavy_mps2, vmax, action_s):
     return out
 
 
-@_jit
+@jit
 def snapshot_columns(rows, lane_len, min_gap_m):
     """The columns of a snapshot that follow from the getters' rows (models.urban.sim.Simulation.snapshot): lane code and
     route index as integers, lane length, fuel volume rate (ml/s) and the leader's bumper-to-bumper gap (-1: no leader;

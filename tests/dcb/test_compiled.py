@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 from numba import njit
 
-from models.dcb import kernels
 from models.dcb.cmarl import CoordinatedQ
 from models.dcb.mirl import IndependentQ
 from models.dcb.train import ABSTRACT_STEP_MIN, GROUND, Level, run_episode
+from models.jit import jit
 
 
 @njit
@@ -131,7 +131,7 @@ def test_a_kernel_compiles_where_numba_finds_no_cache_directory():
     exec("def twice(x):\n    return 2 * x\n", namespace)  # no source file: no cache directory for it either
     with pytest.raises(RuntimeError, match="no locator"):
         njit(cache=True)(namespace["twice"])
-    assert kernels._jit(namespace["twice"])(21) == 42
+    assert jit(namespace["twice"])(21) == 42
 
 
 def test_learners_train_with_the_compiled_episode(small_case, monkeypatch):

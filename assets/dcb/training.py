@@ -8,6 +8,7 @@ from assets.dcb.cases import problems
 from assets.profiles import check_names, default_profile, resolve
 from models.dcb.experiment import delay_rows
 from models.dcb.mirl import LEARNING_RATE
+from models.dcb.problem import C_PLUS
 from models.dcb.train import METHODS, check_options, train_job
 from models.parallel import ProcessPool, usable_cores
 
@@ -26,6 +27,9 @@ class TrainingConfig(dg.Config):
     learning_rate: float = Field(default=LEARNING_RATE, description="η of the Q updates (Eq 5.6, 5.7); the thesis's 0.01 is tuned for 15,000 episodes")
     readout: str = Field(default="repair", description="repair: the greedy rollout and the best training episode with hotspots left resolved FCFS "
                          "and unneeded delay trimmed; best_episode: the two as they are (the better one is returned)")
+    hold: str = Field(default="wait", description="wait: a flight that holds acts again at the next step while in a hotspot; depart: holding (or leaving "
+                      "every hotspot) is departing, the flight never acts again in the episode (§5.4; MIRL, stHMIRL, sHMIRL, tHMIRL with the thesis state and reward)")
+    c_plus: float = Field(default=C_PLUS, description="C+ of Eq 5.3, the reward of a flight in no hotspot (a large positive constant; the value is ours)")
     workers: int | None = Field(default=None, description="runs (case, method, seed) in parallel, one process each (None: usable cores); "
                                 "every run seeds itself, so the delays do not depend on it")
 
@@ -34,7 +38,7 @@ def training_plan(config: TrainingConfig) -> dict:
     """episodes and seeds of the config or its profile; one line, before any training, for an unknown or no method
     or an option the learners cannot use."""
     check_names("DCB methods", config.methods, METHODS)
-    check_options(config.state, config.reward, config.learning_rate, config.readout)
+    check_options(config.state, config.reward, config.learning_rate, config.readout, config.hold, config.c_plus, config.methods)
     return resolve(config, PROFILE)
 
 
@@ -43,7 +47,8 @@ def dcb_delays(context: dg.AssetExecutionContext, config: TrainingConfig, dcb_ca
                dcb_sectors: pl.DataFrame, dcb_flights: pl.DataFrame) -> dg.Output:
     plan = training_plan(config)
     episodes, seeds = plan["episodes"], plan["seeds"]
-    options = {"state": config.state, "reward": config.reward, "learning_rate": config.learning_rate, "readout": config.readout}
+    options = {"state": config.state, "reward": config.reward, "learning_rate": config.learning_rate, "readout": config.readout,
+               "hold": config.hold, "c_plus": config.c_plus}
     todo = [(case, problem, method, seed) for case, problem in problems(dcb_cases, dcb_sector_entries, dcb_sectors, dcb_flights).items()
             for method in config.methods for seed in seeds]
     frames, runs = [], []
@@ -57,5 +62,5 @@ def dcb_delays(context: dg.AssetExecutionContext, config: TrainingConfig, dcb_ca
             context.log.info(f"[{k}/{len(todo)}] {runs[-1]}")
     return dg.Output(pl.concat(frames), metadata={"episodes_per_level": episodes, "seeds": dg.MetadataValue.json(seeds),
                                                   "state": config.state, "reward": config.reward, "learning_rate": config.learning_rate,
-                                                  "readout": config.readout,
+                                                  "readout": config.readout, "hold": config.hold, "c_plus": config.c_plus,
                                                   "runs": dg.MetadataValue.json(runs)})

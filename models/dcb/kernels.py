@@ -133,13 +133,51 @@ def act(delay, agents, q, explore_draw, coin, eps, action_step):
 
 
 @jit
+def depart_step(q, state, action, reward, next_state, agents, hotspots, departed, tail, learn, lr, gamma):
+    """hold="depart" (`train.run_episode`): the step's agents that held, or whose delay took them out of every hotspot,
+    depart - they never act again in the episode - and their last action is valued by the rewards they collect from
+    this step to the episode's end (tail: [flight] state, action, discounted return, discount; state -1: not departed
+    with a pending value), whose update `depart_end` makes; the other agents get Eq 5.6. Flights that departed at
+    earlier steps add this step's reward to their return. reward is read only when learn."""
+    if learn:
+        for i in range(departed.size):
+            if tail[i, 0] >= 0:
+                tail[i, 2] += tail[i, 3] * reward[i]
+                tail[i, 3] *= gamma
+    stay = np.empty(agents.size, dtype=np.int64)
+    n_stay = 0
+    for i in agents:
+        if action[i] == 0 or hotspots[i] == 0:
+            departed[i] = True
+            if learn:
+                tail[i, 0], tail[i, 1], tail[i, 2], tail[i, 3] = state[i], action[i], reward[i], gamma
+        else:
+            stay[n_stay] = i
+            n_stay += 1
+    if learn:
+        q_update(q, state, action, reward, next_state, stay[:n_stay], lr, gamma)
+
+
+@jit
+def depart_end(q, tail, lr):
+    """hold="depart": Eq 5.6 for every departed flight's last action, with the return it collected as its target."""
+    for i in range(tail.shape[0]):
+        if tail[i, 0] >= 0:
+            s, a = np.int64(tail[i, 0]), np.int64(tail[i, 1])
+            q[i, s, a] += lr * (tail[i, 2] - q[i, s, a])
+
+
+@jit
 def independent_episode(rng, q, delay, state, agents, hotspots, eps, n_steps, action_step, state_step, learn, lr, gamma, delay_cost,
-                        entries, h_cap, cost_per_min, c_plus):
+                        entries, h_cap, cost_per_min, c_plus, depart):
     """`train.run_episode` for MIRL (IndependentQ) with the thesis state and reward from its first step on: the same
     draws per step (numba's Generator.random and .integers are numpy's algorithms run on the generator's own bit
     generator state), then the kernels of the step that calls the learner, in its order -> (delays, hotspots).
     entries: the relevant entries' arrays, capacity, n_hours, n_flights and MaxDelay (`evaluate`'s arguments after the
-    delays); delays stay within [0, MaxDelay] (see `run_episode`), so `evaluate`'s status is always 0."""
+    delays); delays stay within [0, MaxDelay] (see `run_episode`), so `evaluate`'s status is always 0. depart: hold="depart"
+    (`depart_step`), else a flight that holds acts again at the next step while it is in a hotspot."""
+    departed = np.zeros(delay.size if depart else 0, dtype=np.bool_)
+    tail = np.full((departed.size, 4), -1.0)
     for _ in range(n_steps):
         if agents.size == 0:
             break
@@ -147,9 +185,17 @@ def independent_episode(rng, q, delay, state, agents, hotspots, eps, n_steps, ac
         action, _, delay = act(delay, agents, q_values(q, state, agents), explore_draw, coin, eps, action_step)
         _, _, hot, _, _, h, tdc, _, _ = evaluate(delay, *entries, False, False)
         next_state = local_state(delay, h, delay[:0], state_step, 1, h_cap)
-        if learn:
-            q_update(q, state, action, thesis_reward(tdc, delay_cost, delay, cost_per_min, c_plus), next_state, agents, lr, gamma)
-        state, agents, hotspots = next_state, (h > 0).nonzero()[0], hot.sum()
+        if depart:
+            reward = thesis_reward(tdc, delay_cost, delay, cost_per_min, c_plus) if learn else tdc
+            depart_step(q, state, action, reward, next_state, agents, h, departed, tail, learn, lr, gamma)
+            agents = ((h > 0) & ~departed).nonzero()[0]
+        else:
+            if learn:
+                q_update(q, state, action, thesis_reward(tdc, delay_cost, delay, cost_per_min, c_plus), next_state, agents, lr, gamma)
+            agents = (h > 0).nonzero()[0]
+        state, hotspots = next_state, hot.sum()
+    if depart and learn:
+        depart_end(q, tail, lr)
     return delay, hotspots
 
 

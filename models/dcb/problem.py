@@ -180,9 +180,9 @@ class DCBProblem:
         excess = ev.counts[ks] - self.capacity[ks]
         return np.bincount(flight[order][rank < excess], minlength=self.n_flights).clip(max=1)
 
-    def reward(self, delay_min: np.ndarray, ev: Evaluation) -> np.ndarray:
-        """Eq 5.2-5.4 for every flight."""
-        return kernels.thesis_reward(ev.congested_min, self.delay_cost, delay_min, AVG_DELAY_COST_EUR_PER_MIN, C_PLUS)
+    def reward(self, delay_min: np.ndarray, ev: Evaluation, c_plus: float = C_PLUS) -> np.ndarray:
+        """Eq 5.2-5.4 for every flight (c_plus: C₊, the reward of a flight in no hotspot)."""
+        return kernels.thesis_reward(ev.congested_min, self.delay_cost, delay_min, AVG_DELAY_COST_EUR_PER_MIN, c_plus)
 
     def difference_reward(self, added_min: np.ndarray, before: Evaluation, after: Evaluation) -> np.ndarray:
         """D_i = G(z) - G(z_-i): what flight i's own action changed in the day's congestion and delay cost,

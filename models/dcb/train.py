@@ -24,7 +24,16 @@ Options beyond the thesis (defaults: the thesis's, but for the read-out), see do
   `demand - capacity` entries of its hotspot closest to the end of their hour (DCBProblem.movers);
 - reward="difference": each flight is rewarded with what its own action changed in the day's total
   of Eq 5.2 (DCBProblem.difference_reward) instead of its local Eq 5.2 reward; reward="overload": the
-  same for the day's overload, entries beyond capacity (DCBProblem.overload_reward).
+  same for the day's overload, entries beyond capacity (DCBProblem.overload_reward);
+- hold="depart" (MIRL and its hierarchical variants, thesis state and reward): §5.4's "the agent is responsible for
+  distributing delay units to the corresponding flight until it departs ... Afterwards ... without the possibility to
+  receive additional delay" read literally. A flight that holds, or whose delay took it out of every hotspot, departs:
+  it never acts again in the episode, and its last action is valued by the rewards it still collects until the episode
+  ends (its congestion as the others move) instead of by Q of a state it will act in. With hold="wait" (default) a
+  flight that holds faces the same state at the next step, so "hold" in a hotspot nobody clears yet bootstraps from
+  itself (-81 · TDC per step) and every flight of a hotspot learns to delay (docs/dcb.md, "What we learned");
+- c_plus: the value of C₊ (Eq 5.3, "a large positive constant"; ours, default 100); with hold="depart" a departed
+  flight collects it at every step it spends out of hotspots, so it weighs how much leaving a hotspot is worth.
 
 Q-values of the abstract level initialise the ground level (Q_ground(s) = Q_abstract(φ(s))), which
 then trains with exploration starting at ε = 0.7. Two candidate schedules come out: the greedy (ε = 0)
@@ -60,6 +69,8 @@ STATES = {"thesis": 1, "extended": 2}  # local state -> values of its extra comp
 # (DCBProblem.overload_reward)
 REWARDS = ("thesis", "difference", "overload")
 READOUTS = ("repair", "best_episode")  # the solution read out of a trained policy, see the module docstring
+HOLDS = ("wait", "depart")  # what holding means for a flight in a hotspot, see the module docstring
+DEPART_ONLY = "DCB hold 'depart' is implemented for MIRL, stHMIRL, sHMIRL and tHMIRL with the thesis state and reward only"
 
 
 @dataclass(frozen=True)
@@ -115,35 +126,37 @@ def local_state(problem: DCBProblem, level: Level, delay: np.ndarray, ev) -> np.
     return level.state(delay, ev.hotspots_per_flight, problem.movers(delay, ev) if level.n_extra > 1 else None)
 
 
-def _episode_tail(problem: DCBProblem, learner, level: Level, eps: float, learn: bool) -> tuple:
+def _episode_tail(problem: DCBProblem, learner, level: Level, eps: float, learn: bool, c_plus: float) -> tuple:
     """The compiled episodes' arguments after their learner's and the start's: ε, steps, the level, η, γ, the delay costs,
     the entries `kernels.evaluate` reads and the reward's constants."""
     return (eps, problem.max_delay_min // level.action_step, level.action_step, level.state_step, learn, learner.lr, learner.gamma,
-            problem.delay_cost, problem.kernel_entries(), H_CAP, AVG_DELAY_COST_EUR_PER_MIN, C_PLUS)
+            problem.delay_cost, problem.kernel_entries(), H_CAP, AVG_DELAY_COST_EUR_PER_MIN, c_plus)
 
 
 def _independent_episode(problem: DCBProblem, learner: IndependentQ, level: Level, eps: float, rng: np.random.Generator, learn: bool,
-                         delay: np.ndarray, state: np.ndarray, ev) -> tuple[np.ndarray, int]:
+                         delay: np.ndarray, state: np.ndarray, ev, c_plus: float, hold: str) -> tuple[np.ndarray, int]:
     """`run_episode` for MIRL and its hierarchical variants with the thesis state and reward: one kernel call for the
     whole episode (`kernels.independent_episode`, ~20-30 µs per step on the full day; the loop's kernel calls part by
     part cost ~70 µs, mostly call overhead and the numpy draws)."""
     delay, hotspots = kernels.independent_episode(rng, learner.q, delay, state, (ev.hotspots_per_flight > 0).nonzero()[0], ev.hotspots,
-                                                  *_episode_tail(problem, learner, level, eps, learn))
+                                                  *_episode_tail(problem, learner, level, eps, learn, c_plus), hold == "depart")
     return delay, int(hotspots)
 
 
 def _coordinated_episode(problem: DCBProblem, learner: CoordinatedQ, level: Level, eps: float, rng: np.random.Generator, learn: bool,
-                         delay: np.ndarray, state: np.ndarray, ev) -> tuple[np.ndarray, int]:
+                         delay: np.ndarray, state: np.ndarray, ev, c_plus: float, hold: str) -> tuple[np.ndarray, int]:
     """`run_episode` for CMARL and HCMARL with the thesis state and reward: one kernel call for the whole episode
-    (`kernels.coordinated_episode`)."""
+    (`kernels.coordinated_episode`; hold is always "wait" here, `run_episode` refuses "depart")."""
     delay, hotspots = kernels.coordinated_episode(rng, *learner.lookup, GOLDEN, TABLE_BITS, delay, state, (ev.hotspots_per_flight > 0).nonzero()[0],
-                                                  ev.hot_key, ev.hot_flight, ev.hotspots, *_episode_tail(problem, learner, level, eps, learn))
+                                                  ev.hot_key, ev.hot_flight, ev.hotspots, *_episode_tail(problem, learner, level, eps, learn, c_plus))
     return delay, int(hotspots)
 
 
 def run_episode(problem: DCBProblem, learner, level: Level, eps: float, rng: np.random.Generator, learn: bool = True,
-                reward: str = "thesis") -> tuple[np.ndarray, int]:
-    """One episode from zero delays; returns the final delays [min] and the hotspots they leave."""
+                reward: str = "thesis", hold: str = "wait", c_plus: float = C_PLUS) -> tuple[np.ndarray, int]:
+    """One episode from zero delays; returns the final delays [min] and the hotspots they leave. hold: "wait" (a flight
+    that holds acts again at the next step while it is in a hotspot) or "depart" (see the module docstring); c_plus: C₊ of
+    Eq 5.3."""
     n_states = level.n_states(problem.max_delay_min)
     if isinstance(learner, IndependentQ | CoordinatedQ) and (learner.n_flights != problem.n_flights or learner.n_states < n_states):
         # the kernels index by flight and state unchecked (numba has no bounds check): a short table would be read and written past its rows
@@ -155,8 +168,11 @@ def run_episode(problem: DCBProblem, learner, level: Level, eps: float, rng: np.
     # MIRL, CMARL with the thesis state and reward: the same episode as the loop below, compiled whole (any other
     # learner type, a subclass or a wrapper included, takes the loop: its values and update are called)
     compiled = {IndependentQ: _independent_episode, CoordinatedQ: _coordinated_episode}.get(type(learner))
-    if compiled is not None and level.n_extra == 1 and (reward == "thesis" or not learn):
-        return compiled(problem, learner, level, eps, rng, learn, delay, state, ev)
+    takes_compiled = compiled is not None and level.n_extra == 1 and (reward == "thesis" or not learn)
+    if hold == "depart" and not (takes_compiled and compiled is _independent_episode):  # only MIRL's compiled episode departs
+        raise ValueError(DEPART_ONLY)
+    if takes_compiled:
+        return compiled(problem, learner, level, eps, rng, learn, delay, state, ev, c_plus, hold)
     # every flight in a hotspot acts: at step t < MaxDelay // step all delays are <= t · step, so one more step stays within MaxDelay
     for _ in range(problem.max_delay_min // level.action_step):
         agents = (ev.hotspots_per_flight > 0).nonzero()[0]  # nonzero of a bool array: ~1.5x faster than of the counts
@@ -170,7 +186,7 @@ def run_episode(problem: DCBProblem, learner, level: Level, eps: float, rng: np.
         next_state = local_state(problem, level, delay, ev)
         if learn:
             if reward == "thesis":
-                r = problem.reward(delay, ev)
+                r = problem.reward(delay, ev, c_plus)
             else:
                 r = (problem.difference_reward if reward == "difference" else problem.overload_reward)(added, before, ev)
             learner.update(state, action, r, next_state, agents)
@@ -184,8 +200,9 @@ def _make(learner_cls, problem: DCBProblem, n_states: int, lr: float):
     return IndependentQ(problem.n_flights, n_states, lr=lr)
 
 
-def check_options(state: str, reward: str, learning_rate: float, readout: str) -> None:
-    """One line for an option `train` cannot use (dcb_delays asks before it starts any training)."""
+def check_options(state: str, reward: str, learning_rate: float, readout: str, hold: str = "wait", c_plus: float = C_PLUS,
+                  methods: list[str] | tuple = ()) -> None:
+    """One line for an option `train` cannot use with these methods (dcb_delays asks before it starts any training)."""
     if state not in STATES:
         raise ValueError(f"unknown DCB local state {state!r}: expected one of {', '.join(STATES)}")
     if reward not in REWARDS:
@@ -194,17 +211,24 @@ def check_options(state: str, reward: str, learning_rate: float, readout: str) -
         raise ValueError(f"unknown DCB read-out {readout!r}: expected one of {', '.join(READOUTS)}")
     if not 0 < learning_rate <= 1:
         raise ValueError(f"DCB learning rate {learning_rate} is outside (0, 1]")
+    if hold not in HOLDS:
+        raise ValueError(f"unknown DCB hold {hold!r}: expected one of {', '.join(HOLDS)}")
+    if not c_plus > 0:
+        raise ValueError(f"DCB C+ {c_plus} is not positive (Eq 5.3: a large positive constant)")
+    if hold == "depart" and (state != "thesis" or reward != "thesis" or any(METHODS[m][0] is not IndependentQ for m in methods)):
+        raise ValueError(DEPART_ONLY)
 
 
 def train(problem: DCBProblem, method: str, seed: int, episodes: int = EPISODES, state: str = "thesis",
-          reward: str = "thesis", learning_rate: float = LEARNING_RATE, readout: str = "repair") -> TrainResult:
+          reward: str = "thesis", learning_rate: float = LEARNING_RATE, readout: str = "repair", hold: str = "wait",
+          c_plus: float = C_PLUS) -> TrainResult:
     """Train `method` on `problem` (`episodes` per level) and return its solution (greedy rollout or best episode).
 
     state: "thesis" (d_i, h_i) or "extended" (d_i, h_i, x_i), see `local_state`; reward: "thesis" (Eq 5.2-5.4
     per flight), "difference" (`DCBProblem.difference_reward`) or "overload" (`DCBProblem.overload_reward`); learning_rate:
     η of Eq 5.6 / 5.7 (thesis 0.01); readout: "repair" (greedy rollout and best episode each through `readout.polish`)
-    or "best_episode" (the two as they are)."""
-    check_options(state, reward, learning_rate, readout)
+    or "best_episode" (the two as they are); hold: "wait" or "depart" (module docstring); c_plus: C₊ of Eq 5.3."""
+    check_options(state, reward, learning_rate, readout, hold, c_plus, [method])
     learner_cls, abstract = METHODS[method]
     ground = replace(GROUND, n_extra=STATES[state])
     abstract = abstract and replace(abstract, n_extra=STATES[state])
@@ -217,13 +241,13 @@ def train(problem: DCBProblem, method: str, seed: int, episodes: int = EPISODES,
         n_states = level.n_states(problem.max_delay_min)
         learner = _make(learner_cls, problem, n_states, learning_rate) if learner is None else learner.transferred(n_states, abstract.state_map(problem.max_delay_min))
         for e in range(episodes):
-            delay, hot = run_episode(problem, learner, level, epsilon(e, eps0, episodes), rng, reward=reward)
+            delay, hot = run_episode(problem, learner, level, epsilon(e, eps0, episodes), rng, reward=reward, hold=hold, c_plus=c_plus)
             if level is ground and (hot, delay.sum()) < best[:2]:
                 best = (hot, delay.sum(), delay)
             if e % 50 == 0 or e == episodes - 1:
                 curve.append((n, hot, int(delay.sum())))
             n += 1
-    delay, hot = run_episode(problem, learner, ground, 0.0, rng, learn=False)
+    delay, hot = run_episode(problem, learner, ground, 0.0, rng, learn=False, hold=hold)
     greedy = (int(hot), int(delay.sum()))
     candidates = {"greedy": delay} if best[2] is None else {"greedy": delay, "best_episode": best[2]}  # None: no episode trained
     if readout == "repair":

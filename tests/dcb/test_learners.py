@@ -4,9 +4,11 @@ import numpy as np
 import pytest
 
 from models.dcb.loop import PerFlightEpisodes, PerFlightQ
+from models.dcb.cmarl import CoordinatedQ
 from models.dcb.mirl import IndependentQ
 from models.dcb.optimum import solve_optimum
 from models.dcb.train import ABSTRACT_STEP_MIN, GROUND, METHODS, Level, run_episode, train, train_job
+from tests.dcb.test_problem import make_problem
 
 
 def test_small_real_case(small_case):
@@ -112,3 +114,53 @@ def test_a_worker_trains_with_the_options_it_is_given(small_case):
     here = train(small_case, "MIRL", 0, 20, **options)
     assert np.array_equal(there.delay_min, here.delay_min) and there.source == here.source
     assert not np.array_equal(there.delay_min, train(small_case, "MIRL", 0, 20).delay_min)  # the options change the result
+
+
+def _two_flights_one_hotspot():
+    """Sector A, capacity 1: f1 enters at 00:30 and f2 at 00:58, 10 min inside each: one hotspot, f2 leaves it with 2 min."""
+    return make_problem([("f1", "A", 30, 10), ("f2", "A", 58, 10)], {"A": 1})
+
+
+@pytest.mark.parametrize("c_plus", [100.0, 1000.0])
+def test_hold_depart_ends_a_flights_turn_and_values_it_by_what_follows(c_plus):
+    """hold="depart" on a hand-computed greedy episode (ties hold; f2's Q prefers delaying at (0, 1) and (1, 1)). Step 1:
+    f1 holds and departs, f2 delays to 00:59, still in the hotspot (both get -81 · 10, f2 - 20 · 1 more). Step 2: f2 delays
+    out of it and departs (C+ - 40); f1, departed, cannot act and collects C+. f1's hold is valued by its return
+    -810 + γ · C+, f2's last delay by C+ - 40; f2's first delay by Eq 5.6. With hold="wait" f1 acts again at step 2 and
+    delays (Q(hold) fell to -8.1 below Q(delay) = 0)."""
+    p = _two_flights_one_hotspot()
+    s0, s1 = GROUND.state(np.array([0, 1]), np.array([1, 1]))
+    q = {}
+    for hold in ("depart", "wait"):
+        q[hold] = IndependentQ(2, GROUND.n_states(p.max_delay_min))
+        q[hold].q[1, [s0, s1], 1] = 1.0
+        d, hot = run_episode(p, q[hold], GROUND, 0.0, np.random.default_rng(0), hold=hold, c_plus=c_plus)
+        assert hot == 0 and d.tolist() == ([0, 2] if hold == "depart" else [1, 2])
+    lr, gamma = 0.01, 0.99
+    assert q["depart"].q[0, s0, 0] == pytest.approx(lr * (-810 + gamma * c_plus), rel=1e-12)
+    assert q["depart"].q[1, s1, 1] == pytest.approx(1 + lr * (c_plus - 40 - 1), rel=1e-12)
+    assert q["depart"].q[1, s0, 1] == pytest.approx(1 + lr * (-830 + gamma * 1 - 1), rel=1e-12)
+    assert q["wait"].q[0, s0, 0] == pytest.approx(-8.1, rel=1e-12)
+
+
+def test_hold_depart_greedy_policy_resolves_the_small_case(small_case):
+    """MIRL and sHMIRL, seed 0, 40 episodes: with hold="depart" and C+ = 10,000 the greedy policy itself leaves no
+    hotspot (MIRL 50 min, sHMIRL 58, optimum 20), where the default's leaves 3 (so a training episode is returned)."""
+    for method in ("MIRL", "sHMIRL"):
+        wait = train(small_case, method, seed=0, episodes=40, readout="best_episode")
+        depart = train(small_case, method, seed=0, episodes=40, readout="best_episode", hold="depart", c_plus=10_000.0)
+        assert wait.greedy_hotspots == 3 and wait.source == "best_episode"
+        assert depart.source == "greedy" and depart.greedy_hotspots == 0 == small_case.evaluate(depart.delay_min, all_entries=True).hotspots
+        assert depart.greedy_delay_min <= 60 < wait.delay_min.sum()
+
+
+def test_hold_and_c_plus_options_are_checked_in_one_line(small_case):
+    with pytest.raises(ValueError, match="^unknown DCB hold 'stay': expected one of wait, depart$"):
+        train(small_case, "MIRL", seed=0, episodes=1, hold="stay")
+    with pytest.raises(ValueError, match=r"^DCB C\+ 0.0 is not positive"):
+        train(small_case, "MIRL", seed=0, episodes=1, c_plus=0.0)
+    for method, options in (("CMARL", {}), ("HCMARL", {}), ("MIRL", {"reward": "overload"}), ("sHMIRL", {"state": "extended"})):
+        with pytest.raises(ValueError, match="^DCB hold 'depart' is implemented for MIRL, stHMIRL, sHMIRL and tHMIRL with the thesis state"):
+            train(small_case, method, seed=0, episodes=1, hold="depart", **options)
+    with pytest.raises(ValueError, match="^DCB hold 'depart' is implemented"):  # the learner's type decides, also outside train
+        run_episode(small_case, CoordinatedQ(small_case.n_flights, GROUND.n_states(60)), GROUND, 0.5, np.random.default_rng(0), hold="depart")

@@ -31,11 +31,13 @@ def urban_routes(context: dg.AssetExecutionContext, config: RoutesConfig) -> dg.
 
 class ScenariosConfig(dg.Config):
     profile: str = Field(default=default_profile(), description="demo: Sc1 and real CR trained, MR/LR and 3x copies evaluated; paper: Tables 4.2-4.9")
+    artificial_cars_only: bool = Field(default=False, description="passenger cars only on Sc1/Sc2/Sc4 and their copies (as Table 4.2's "
+                                       "one route agent per route suggests the thesis had); default: the 75/15/10 mix everywhere")
 
 
 @dg.asset(group_name="urban", description="Seeded scenario copies (train / eval / reuse): SUMO route and vehicle-type files, 75/15/10 vehicle mix.")
 def urban_scenarios(context: dg.AssetExecutionContext, config: ScenariosConfig, urban_routes: pl.DataFrame) -> dg.Output:
-    specs = scenarios(config.profile, user_network="user" in set(urban_routes["network"]))
+    specs = scenarios(config.profile, user_network="user" in set(urban_routes["network"]), artificial_cars_only=config.artificial_cars_only)
     df = scenarios_table(specs, urban_routes, home() / "sumo" / "scenarios")
     counts = df.group_by("scenario", "role", maintain_order=True).agg(copies=pl.len(), vehicles=pl.col("n_vehicles").sum())
     context.log.info(f"{df.height} scenario copies written: {counts.rows()}")

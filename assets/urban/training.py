@@ -69,7 +69,7 @@ def urban_training(context: dg.AssetExecutionContext, config: TrainingConfig, ur
     with ProcessPool(config.workers or usable_cores(), col_marl.run_episode) as pool:
         for (scenario,), g in train.group_by("scenario", maintain_order=True):
             copies = [(files_of(r), r["n_vehicles"]) for r in g.iter_rows(named=True)]
-            agents = route_agents(urban_routes, g["network"][0])
+            agents = route_agents(urban_routes, g)
             for method in config.methods:
                 if scenario not in only_on.get(method, [scenario]):
                     continue

@@ -60,29 +60,32 @@ def networks(profile: str, user_source: str | None = None) -> list[NetworkSpec]:
     return nets
 
 
-def scenarios(profile: str, user_network: bool = False) -> list[ScenarioSpec]:
+def scenarios(profile: str, user_network: bool = False, artificial_cars_only: bool = False) -> list[ScenarioSpec]:
     """Demo: Sc1 and the real network (CR) trained; MR/LR noise and 3x denser/longer copies evaluated with
-    their policies. Paper: Tables 4.2-4.9 (Sc1/Sc2/Sc4, real CR/MR/LR, LS_const/LS_noisy, knowledge reuse)."""
+    their policies. Paper: Tables 4.2-4.9 (Sc1/Sc2/Sc4, real CR/MR/LR, LS_const/LS_noisy, knowledge reuse).
+    Every scenario carries the 75/15/10 mix; artificial_cars_only: passenger cars only on Sc1/Sc2/Sc4 and their copies,
+    as Table 4.2's route-agent counts suggest the thesis had (models.urban.scenarios.CARS_ONLY)."""
+    cars = artificial_cars_only
     if profile == "demo":
         s = [
-            ScenarioSpec("sc1", "sc1", Demand(40, 160.0), 2, 3, "sc1"),
+            ScenarioSpec("sc1", "sc1", Demand(40, 160.0, cars_only=cars), 2, 3, "sc1"),
             ScenarioSpec("real_cr", "real", Demand(40, 160.0), 2, 3, "real_cr"),
             ScenarioSpec("real_mr", "real", Demand(40, 160.0, noise_sigma_s=0.5), 0, 3, "real_cr"),
             ScenarioSpec("real_lr", "real", Demand(40, 160.0, noise_sigma_s=1.0), 0, 3, "real_cr"),
-            ScenarioSpec("sc1_x3", "sc1", Demand(120, 480.0), 0, 3, "sc1", "reuse"),
+            ScenarioSpec("sc1_x3", "sc1", Demand(120, 480.0, cars_only=cars), 0, 3, "sc1", "reuse"),
             ScenarioSpec("real_cr_x3", "real", Demand(120, 480.0), 0, 3, "real_cr", "reuse"),
         ]
     else:
         s = [
-            ScenarioSpec("sc1", "sc1", Demand(150, 600.0), 5, 10, "sc1"),
-            ScenarioSpec("sc2", "sc2", Demand(300, 1200.0), 5, 10, "sc2"),
-            ScenarioSpec("sc4", "sc4", Demand(1000, 4000.0), 5, 10, "sc4"),
+            ScenarioSpec("sc1", "sc1", Demand(150, 600.0, cars_only=cars), 5, 10, "sc1"),
+            ScenarioSpec("sc2", "sc2", Demand(300, 1200.0, cars_only=cars), 5, 10, "sc2"),
+            ScenarioSpec("sc4", "sc4", Demand(1000, 4000.0, cars_only=cars), 5, 10, "sc4"),
             *[ScenarioSpec(f"real_{k}", "real", Demand(300, 1200.0, noise_sigma_s=sd), 5, 10, f"real_{k}")
               for k, sd in (("cr", 0.0), ("mr", 0.5), ("lr", 1.0))],
             ScenarioSpec("real_ls_const", "real", Demand(0, 1800.0, "ls"), 5, 10, "real_ls_const"),
             ScenarioSpec("real_ls_noisy", "real", Demand(0, 1800.0, "ls", 0.2), 5, 10, "real_ls_noisy"),
             # Table 4.6-4.7: medium (2x) and large (5x) copies of the artificial scenarios
-            *[ScenarioSpec(f"{sc}_x{k}", sc, Demand(n * k, d * k), 0, 10, sc, "reuse")
+            *[ScenarioSpec(f"{sc}_x{k}", sc, Demand(n * k, d * k, cars_only=cars), 0, 10, sc, "reuse")
               for sc, n, d in (("sc1", 150, 600.0), ("sc2", 300, 1200.0), ("sc4", 1000, 4000.0)) for k in (2, 5)],
             # Table 4.8: each noise level's policies on the other noise levels
             *[ScenarioSpec(f"real_{k}_by_{p}", "real", Demand(300, 1200.0, noise_sigma_s=sd), 0, 10, f"real_{p}", "reuse")
@@ -166,8 +169,11 @@ def files_of(row: dict) -> ScenarioFiles:
     return ScenarioFiles(row["net_path"], row["routes_path"], row["folder"], row["last_depart_s"], row["max_speed_mps"])
 
 
-def route_agents(routes: pl.DataFrame, network: str) -> list[str]:
-    return [f"{r}:{c}" for r in routes.filter(pl.col("network") == network)["route_id"] for c in ("car", "heavy")]
+def route_agents(routes: pl.DataFrame, copies: pl.DataFrame) -> list[str]:
+    """'route:class' of every route of the copies' network and every vehicle class they carry (urban_scenarios rows of
+    one network): a cars-only scenario has no heavy route agents, which would never see a vehicle."""
+    classes = [c for c, n in (("car", copies["n_cars"].sum()), ("heavy", copies["n_buses"].sum() + copies["n_trucks"].sum())) if n]
+    return [f"{r}:{c}" for r in routes.filter(pl.col("network") == copies["network"][0])["route_id"] for c in classes]
 
 
 # --- thesis tables ---------------------------------------------------------------------------------

@@ -1,10 +1,10 @@
-"""Demand: 75/15/10 mix, constant or noisy arrivals, LS streams, seeded copies; the held-out copies evaluated."""
+"""Demand: 75/15/10 mix (cars only on the artificial networks as an option), constant or noisy arrivals, LS streams, seeded copies; the held-out copies evaluated."""
 
 import numpy as np
 import polars as pl
 import pytest
 
-from models.urban.experiments import EVALUATION_METHODS, METHODS_RL, METHODS_SHIELDED, METHODS_SUMO, evaluation_jobs, held_out, scenarios
+from models.urban.experiments import EVALUATION_METHODS, METHODS_RL, METHODS_SHIELDED, METHODS_SUMO, evaluation_jobs, held_out, route_agents, scenarios
 from models.urban.network import UrbanInputError
 from models.urban.scenarios import Demand, vehicles
 
@@ -16,6 +16,25 @@ def test_constant_arrivals_and_mix():
     kinds, counts = np.unique(v["vtype"], return_counts=True)
     assert dict(zip(kinds, counts)) == {"car": 150, "bus": 30, "truck": 20}
     assert set(v["route"]) == set(range(12))
+
+
+def test_the_mix_everywhere_and_cars_only_on_the_artificial_networks_as_an_option():
+    # default: the 75/15/10 mix on every network (issue 4); the option: cars only on Sc1/Sc2/Sc4, as Table 4.2's route agents
+    for profile in ("demo", "paper"):
+        for cars_only in (False, True):
+            for spec in scenarios(profile, artificial_cars_only=cars_only):
+                if spec.demand.arrival == "constant":
+                    assert spec.demand.cars_only == (cars_only and spec.network.startswith("sc")), spec.name
+    mixed, cars = (vehicles(Demand(200, 800.0, cars_only=c), n_routes=12, seed=1) for c in (False, True))
+    assert set(cars["vtype"]) == {"car"}
+    assert np.array_equal(cars["depart_s"], mixed["depart_s"]) and np.array_equal(cars["route"], mixed["route"])
+
+
+def test_route_agents_only_for_the_vehicle_classes_a_scenario_carries():
+    routes = pl.DataFrame({"network": ["sc1", "sc1", "real"], "route_id": ["r0", "r1", "r9"]})
+    copies = pl.DataFrame({"network": ["sc1", "sc1"], "n_cars": [40, 40], "n_buses": [0, 0], "n_trucks": [0, 0]})
+    assert route_agents(routes, copies) == ["r0:car", "r1:car"]
+    assert route_agents(routes, copies.with_columns(n_trucks=pl.Series([0, 1]))) == ["r0:car", "r0:heavy", "r1:car", "r1:heavy"]
 
 
 def test_noise_changes_gaps_but_not_the_mean_much():

@@ -35,7 +35,7 @@ TABLES: list[Table] = [
             col("network", pa.string(), "", "network of urban_routes"),
             col("role", pa.string(), "", "train (training episodes), eval (held-out copies) or reuse (2-5x longer, denser copies)"),
             col("policy_scenario", pa.string(), "", "scenario whose trained policies drive this copy"),
-            col("arrival", pa.string(), "", "constant (one vehicle per duration/count s, 75/15/10 mix) or ls (cars/buses/trucks every 4/10/15 s)"),
+            col("arrival", pa.string(), "", "constant (one vehicle per duration/count s, 75/15/10 mix; cars only on Sc1/Sc2/Sc4 with artificial_cars_only) or ls (cars/buses/trucks every 4/10/15 s)"),
             col("noise_sigma_s", pa.float64(), "s", "std of the zero-mean Gaussian noise on every inter-arrival time (CR 0, MR 0.5, LR 1.0, LS_noisy 0.2)"),
             col("duration_s", pa.float64(), "s", "demand duration"),
             col("demand_seed", pa.int64(), "", "seed of the copy's departures, vehicle types and routes"),

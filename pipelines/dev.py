@@ -11,7 +11,7 @@ import socket
 import subprocess
 import sys
 
-from pipelines.instance import dagster_home
+from pipelines.instance import InstanceError, dagster_home
 from warehouse.storage import home
 
 
@@ -43,7 +43,11 @@ def main() -> int:
     cmd = [sys.executable, "-m", "dagster", "dev", "-m", "pipelines.definitions", "-d", repo, "-h", host, "-p", port]
     # run from DAGSTER_HOME: from the checkout, dagster dev warns that the template dagster.yaml there "will not be used";
     # the homes as absolute paths, so that a relative one still means what it meant here
-    cwd = str(dagster_home())
+    try:
+        cwd = str(dagster_home())
+    except InstanceError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 1
     homes = {"DAGSTER_HOME": cwd, "TRAFFICLEARN_HOME": str(home())}
 
     def restore_defaults() -> None:

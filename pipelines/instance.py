@@ -9,16 +9,20 @@ from warehouse.storage import home, replace_atomically
 TEMPLATE = Path(__file__).resolve().parent.parent / "dagster.yaml"
 
 
+class InstanceError(ValueError):
+    """The instance's folder cannot be made (one line)."""
+
+
 def dagster_home() -> Path:
     """$DAGSTER_HOME if set; else $TRAFFICLEARN_HOME/dagster, as `make` sets it, with the checkout's dagster.yaml
     copied in when it has none. Exported, so that Dagster and its child processes use it too."""
-    if os.environ.get("DAGSTER_HOME"):
-        path = Path(os.environ["DAGSTER_HOME"]).expanduser().resolve()
+    given = bool(os.environ.get("DAGSTER_HOME"))
+    path = Path(os.environ["DAGSTER_HOME"]).expanduser().resolve() if given else home() / "dagster"
+    try:
         path.mkdir(parents=True, exist_ok=True)
-    else:
-        path = home() / "dagster"
-        path.mkdir(parents=True, exist_ok=True)
-        if not (path / "dagster.yaml").exists():
-            replace_atomically(path / "dagster.yaml", lambda tmp: shutil.copyfile(TEMPLATE, tmp), ".yaml")
+    except OSError as e:  # a file there, or a file on the way (e.g. TRAFFICLEARN_HOME)
+        raise InstanceError(f"{'DAGSTER_HOME' if given else 'the Dagster instance'} {path}: not a usable folder ({e.strerror})") from None
+    if not given and not (path / "dagster.yaml").exists():
+        replace_atomically(path / "dagster.yaml", lambda tmp: shutil.copyfile(TEMPLATE, tmp), ".yaml")
     os.environ["DAGSTER_HOME"] = str(path)
     return path

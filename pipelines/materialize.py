@@ -16,7 +16,7 @@ import time
 import dagster as dg
 
 from pipelines.definitions import SYSTEMS, defs
-from pipelines.instance import dagster_home
+from pipelines.instance import InstanceError, dagster_home
 from warehouse.storage import home
 
 
@@ -72,7 +72,10 @@ def main(argv: list[str] | None = None) -> int:
             dg.validate_run_config(job, {"ops": own[group]})
         except dg.DagsterInvalidConfigError as e:  # Dagster's message lists every error over many lines
             parser.error(f"--config-json for {group}: " + "; ".join(err.message.replace("\n", " ") for err in e.errors))
-    dagster_home()  # without the Makefile: the instance under $TRAFFICLEARN_HOME, as `make demo` has it
+    try:
+        dagster_home()  # without the Makefile: the instance under $TRAFFICLEARN_HOME, as `make demo` has it
+    except InstanceError as e:
+        parser.error(str(e))
     with dg.DagsterInstance.get() as instance:
         for group, job in jobs.items():
             ok, line = run(job, group, instance, own[group])

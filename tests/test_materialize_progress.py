@@ -2,12 +2,13 @@
 failing step named, a text log per run, every group known, and a one-line error for an unknown group."""
 
 import json
+import os
 
 import dagster as dg
 import pytest
 
 from pipelines import materialize
-from pipelines.instance import TEMPLATE, dagster_home
+from pipelines.instance import TEMPLATE, InstanceError, dagster_home
 from pipelines.progress import progress_logger
 
 
@@ -119,3 +120,29 @@ def test_runs_without_dagster_home_in_the_instance_under_trafficlearn_home(tmp_p
 def test_a_set_dagster_home_is_used_as_it_is(tmp_path, monkeypatch):
     monkeypatch.setenv("DAGSTER_HOME", str(tmp_path / "mine"))
     assert dagster_home() == tmp_path / "mine" and not (tmp_path / "mine" / "dagster.yaml").exists()
+
+
+def test_a_relative_dagster_home_is_exported_absolute_and_an_own_dagster_yaml_is_kept(tmp_path, monkeypatch):
+    # absolute, so that `python -m pipelines.dev`, which runs Dagster from that folder, still means the same one
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("DAGSTER_HOME", "rel")
+    assert dagster_home() == tmp_path / "rel" and os.environ["DAGSTER_HOME"] == str(tmp_path / "rel")
+    monkeypatch.setenv("TRAFFICLEARN_HOME", str(tmp_path / "home"))
+    monkeypatch.delenv("DAGSTER_HOME")
+    (tmp_path / "home" / "dagster").mkdir(parents=True)
+    (tmp_path / "home" / "dagster" / "dagster.yaml").write_text("telemetry:\n  enabled: false\n")
+    assert dagster_home() == tmp_path / "home" / "dagster"
+    assert (tmp_path / "home" / "dagster" / "dagster.yaml").read_text() == "telemetry:\n  enabled: false\n"
+
+
+def test_a_file_where_the_instance_goes_is_one_line(tmp_path, monkeypatch, capsys):
+    (tmp_path / "file").write_text("")
+    monkeypatch.setenv("DAGSTER_HOME", str(tmp_path / "file"))
+    with pytest.raises(InstanceError, match=r"^DAGSTER_HOME .*file: not a usable folder \(File exists\)$"):
+        dagster_home()
+    monkeypatch.delenv("DAGSTER_HOME")
+    monkeypatch.setenv("TRAFFICLEARN_HOME", str(tmp_path / "file"))
+    with pytest.raises(SystemExit) as exc:
+        materialize.main(["aviation"])
+    last = capsys.readouterr().err.strip().splitlines()[-1]
+    assert exc.value.code == 2 and last.startswith("python -m pipelines.materialize: error: the Dagster instance") and "not a usable folder" in last

@@ -107,6 +107,9 @@ def test_cli_tables_sql_formats(capsys):
     assert main(["sql", "SELECT * FROM flights"]) == 1
     err = capsys.readouterr().err
     assert err.startswith("error: Catalog Error") and err.strip().endswith("(tables: ingest_summary)") and len(err.strip().splitlines()) == 1
+    assert main(["sql", "SELECT no_such_function(1)"]) == 1  # a catalog error too, but no table's: no list of tables
+    err = capsys.readouterr().err
+    assert err.startswith("error: Catalog Error: Scalar Function") and "tables:" not in err
 
 
 def test_cli_shell_piped(monkeypatch, capsys):

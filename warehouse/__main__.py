@@ -44,7 +44,7 @@ def _table_names(con: duckdb.DuckDBPyConnection) -> list[str]:
 
 def _catalog_hint(con: duckdb.DuckDBPyConnection, error: duckdb.Error) -> str:
     """For an unknown table: which tables there are (a table appears once its asset has been materialised)."""
-    if not isinstance(error, duckdb.CatalogException):
+    if not isinstance(error, duckdb.CatalogException) or "Table with name" not in str(error):  # not an unknown function or setting
         return ""
     names = _table_names(con)
     return f" (tables: {', '.join(sorted(names))})" if names else " (no tables materialised yet: run `make demo`)"

@@ -220,6 +220,8 @@ def _rule_code(rule: str | None) -> int:
 def reward(variant: str, speed: np.ndarray, vmax: float, fveh_dist: np.ndarray, col_term: np.ndarray, rule: str | None = None) -> np.ndarray:
     """Non-terminal reward r(s, a) of every vehicle: "col" Eq 4.4-4.7 (by col_term and whether the front vehicle is
     nearer than safe_dist), "ind" Eq 3.2-3.3 with C = 1."""
+    if variant not in STATE_DIM:  # the kernel takes a flag: anything but "col" would silently be "ind"
+        raise ValueError(f"reward variant {variant!r}: expected one of {sorted(STATE_DIM)}")
     return kernels.reward(variant == "col", speed, vmax, fveh_dist, col_term, _rule_code(rule), KERNEL_PARAMS)
 
 

@@ -189,6 +189,7 @@ class Simulation:
         self.new_collisions: set = set()
         self.new_teleports: set = set()
         self.on_road = 0  # vehicles SUMO lists (vehicle.getIDList)
+        self.in_transfer: set = set()  # vehicles being teleported now (off SUMO's list)
 
     def advance(self, seconds: float) -> list:
         """Simulate `seconds` in sub-steps; returns the vehicles that departed meanwhile."""
@@ -221,8 +222,18 @@ class Simulation:
                 if v not in tally.collided:
                     tally.arrive[v] = t
             # vehicle.getIDCount, counted from the events instead (it builds SUMO's whole id list: µs per sub-step; a
-            # vehicle being teleported is off the list, one removed after a collision is among the arrived)
-            self.on_road += len(new) - len(arrived) - len(teleports) + len(raw.simulation_getEndingTeleportIDList())
+            # vehicle being teleported is off the list, one removed after a collision is among the arrived). A teleport
+            # that ends at the route's end is listed as an arrival, not as an ending teleport: that vehicle left the
+            # list when its teleport started, not again when it arrives
+            ended = raw.simulation_getEndingTeleportIDList()
+            in_transfer = self.in_transfer
+            in_transfer.update(teleports)
+            in_transfer.difference_update(ended)
+            left = len(arrived)
+            if arrived and in_transfer:
+                left -= len(in_transfer.intersection(arrived))
+                in_transfer.difference_update(arrived)
+            self.on_road += len(new) - left - len(teleports) + len(ended)
             tally.vehicle_substeps += self.on_road
         return departed
 

@@ -87,6 +87,19 @@ def test_read_gfs_copy(gfs):
     assert gfs["lat"].n_unique() == 73 and gfs["lon"].n_unique() == 144  # global 2.5°
 
 
+def test_a_grib1_file_is_read_as_grib(tmp_path):
+    """GRIB 1 has its edition byte where GRIB 2 has it (octet 8, after a 3-byte length): eccodes' GRIB 1 sample, a
+    geopotential field, reaches the GRIB reader, which names what it found, whatever the file's extension."""
+    eccodes = pytest.importorskip("eccodes")
+    h = eccodes.codes_grib_new_from_samples("GRIB1")
+    try:
+        with open(tmp_path / "sample.dat", "wb") as f:
+            eccodes.codes_write(h, f)
+    finally:
+        eccodes.codes_release(h)
+    raises_one_line(read_weather, tmp_path / "sample.dat", match=r"found isobaric GRIB short names \['z'\]")
+
+
 def test_gfs_values_match_raw_grib():
     """Check the reader's orientation (north->south rows, 0..360 columns) against eccodes itself."""
     eccodes = pytest.importorskip("eccodes")

@@ -164,3 +164,17 @@ def test_hold_and_c_plus_options_are_checked_in_one_line(small_case):
             train(small_case, method, seed=0, episodes=1, hold="depart", **options)
     with pytest.raises(ValueError, match="^DCB hold 'depart' is implemented"):  # the learner's type decides, also outside train
         run_episode(small_case, CoordinatedQ(small_case.n_flights, GROUND.n_states(60)), GROUND, 0.5, np.random.default_rng(0), hold="depart")
+
+
+def test_hold_depart_a_flight_that_leaves_every_hotspot_departs():
+    """hold="depart": f2's second delay takes it out of the hotspot, so it departs and that delay is valued by the
+    rewards that follow (here none: the episode ends), not bootstrapped from Q of the state it left in (set to 5)."""
+    p = _two_flights_one_hotspot()
+    s0, s1 = GROUND.state(np.array([0, 1]), np.array([1, 1]))
+    (s2,) = GROUND.state(np.array([2]), np.array([0]))
+    q = IndependentQ(2, GROUND.n_states(p.max_delay_min))
+    q.q[1, [s0, s1], 1] = 1.0
+    q.q[1, s2] = 5.0
+    d, hot = run_episode(p, q, GROUND, 0.0, np.random.default_rng(0), hold="depart", c_plus=100.0)
+    assert hot == 0 and d.tolist() == [0, 2]
+    assert q.q[1, s1, 1] == pytest.approx(1 + 0.01 * (100 - 40 - 1), rel=1e-12)

@@ -51,6 +51,22 @@ def test_vehicles_on_the_road_are_counted_from_the_events(tmp_path, sc1_net):
     assert collided == [2, 0]  # the forced crossing: both vehicles removed (and listed as arrived)
 
 
+def test_a_teleport_to_the_route_end_is_counted_once(tmp_path, sc1_net):
+    # a car stopped by order is teleported twice after TELEPORT_AFTER_S: onto its last road (the teleport starts and ends
+    # in one sub-step), then past its route's end: that teleport is listed as an arrival, never as an ending teleport
+    files = hand_copy(tmp_path / "stuck", sc1_net, '  <route id="r000" edges="left0A0 A0right0"/>\n'
+                      '  <vehicle id="r000.car.0" type="car" route="r000" depart="0" departSpeed="10" departPos="base"/>\n')
+    sim = Simulation(files, model="Krauss", seed=0, speed_mode=SPEED_MODE_CAR_FOLLOWING)
+    sim.start()
+    counts = []
+    while not sim.done:
+        for v in sim.advance(STEP_S):
+            sim.ls.vehicle.setSpeed(v, 0.0)
+        counts.append((sim.on_road, sim.ls.vehicle.getIDCount()))
+    sim.close()
+    assert len(sim.tally.teleported) == 1 and counts[-1] == (0, 0) and all(a == b for a, b in counts)
+
+
 def test_sumo_idm_obeys_right_before_left_on_the_same_crossing(tmp_path, sc1_net):
     metrics, _ = run_sumo_model(crossing_copy(tmp_path / "cross", sc1_net), 2, "IDM", 0)
     assert metrics["collisions"] == 0 and metrics["arrived"] == 2 and metrics["success"]
@@ -66,6 +82,8 @@ def test_junction_terms_and_reward():
     r = reward("col", np.array([20.0, 20.0, 20.0, 20.0]), 40.0, np.array([-1.0, 10.0, -1.0, 10.0]), np.array([0.0, 0.0, 1.0, 1.0]))
     assert r == pytest.approx([0.5, -(0.2 + 0.5) * 2.0, -(5.0 + 0.5), -(0.4 + 0.5) * 2.0])  # Eq 4.4, 4.5, 4.6, 4.7
     assert reward("ind", np.array([20.0]), 40.0, np.array([10.0]), np.array([1.0])) == pytest.approx([-(1.0 + 0.5) * 10.0])
+    with pytest.raises(ValueError, match=r"^reward variant 'ch3': expected one of \['col', 'ind'\]$"):
+        reward("ch3", np.array([20.0]), 40.0, np.array([10.0]), np.array([1.0]))
 
 
 

@@ -29,3 +29,14 @@ def test_accelerations_are_np_clip_to_the_sign_of_zero():
     got = kernels.accelerations(action, is_car, speed, _CAR_MPS2, _HEAVY_MPS2, 40.0, 1.0)
     assert np.array_equal(got, expected) and np.array_equal(np.signbit(got), np.signbit(expected))
     assert np.signbit(got[(speed == 0.0) & (action == 2)]).all()
+
+
+def test_snapshot_columns_keep_an_overlapping_leader_as_a_leader():
+    # getLeader's distance excludes the follower's minGap and goes below -minGap when two vehicles overlap: that
+    # leader is at 0 m, not "no leader" (-1); no leader at all is -1 whatever the distance says
+    rows = np.zeros((9, 4))
+    rows[3], rows[4], rows[5] = 700.0, 350.0, [0, 1, 1, 0]  # fuel mg/s, density mg/ml, lane code
+    rows[6], rows[7] = [1, 1, 1, 0], [-4.0, -1.0, 7.5, -1.0]  # leader?, getLeader's distance
+    code, _, length, fuel_mlps, leader_dist = kernels.snapshot_columns(rows, np.array([50.0, 80.0]), 2.5)
+    assert leader_dist.tolist() == [0.0, 1.5, 10.0, -1.0] and length.tolist() == [50.0, 80.0, 80.0, 50.0]
+    assert fuel_mlps.tolist() == [2.0] * 4 and code.dtype == np.int64

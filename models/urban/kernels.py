@@ -22,6 +22,11 @@ from models.jit import jit
 # the floats in `params`, in order (models.urban.env.KERNEL_PARAMS builds the tuple from the env's constants)
 PARAMS = ("safe_dist_m", "safe_headway_s", "action_s", "max_brake_mps2", "c1", "c2", "c3", "beta1", "beta2", "min_fveh_dist_m",
           "max_f_d", "inter_time_s", "pos_scale_m", "leader_scale_m")
+# each one's position in `params`, by name (a reordered PARAMS cannot swap two constants; numba freezes these ints)
+(SAFE_DIST_M, SAFE_HEADWAY_S, ACTION_S, MAX_BRAKE_MPS2, C1, C2, C3, BETA1, BETA2, MIN_FVEH_DIST_M, MAX_F_D, INTER_TIME_S,
+ POS_SCALE_M, LEADER_SCALE_M) = (PARAMS.index(n) for n in ("safe_dist_m", "safe_headway_s", "action_s", "max_brake_mps2", "c1", "c2", "c3",
+                                                          "beta1", "beta2", "min_fveh_dist_m", "max_f_d", "inter_time_s", "pos_scale_m",
+                                                          "leader_scale_m"))
 RULES = ("thesis", "headway", "stopping")  # safe_dist rule codes
 
 
@@ -76,7 +81,7 @@ def junction_terms(junction, road, centre_dist_m, speed, incoming_lanes, inter_t
 
 @jit(inline="always")
 def _safe_dist(v, rule, params):
-    safe_m, headway_s, action_s, brake_mps2 = params[0], params[1], params[2], params[3]
+    safe_m, headway_s, action_s, brake_mps2 = params[SAFE_DIST_M], params[SAFE_HEADWAY_S], params[ACTION_S], params[MAX_BRAKE_MPS2]
     if rule == 0:
         return safe_m
     if rule == 1:
@@ -96,7 +101,8 @@ def safe_dist(speed, rule, params):
 @jit
 def reward(col, speed, vmax, fveh_dist, col_term, rule, params):
     """Non-terminal reward of every vehicle: col-MARL's Eq 4.4-4.7 (col) or i-MARL's Eq 3.2-3.3 with C = 1."""
-    c1, c2, c3, beta1, beta2, min_d, max_f_d = params[4], params[5], params[6], params[7], params[8], params[9], params[10]
+    c1, c2, c3, beta1, beta2 = params[C1], params[C2], params[C3], params[BETA1], params[BETA2]
+    min_d, max_f_d = params[MIN_FVEH_DIST_M], params[MAX_F_D]
     out = np.empty(speed.size)
     for i in range(speed.size):
         fv, sd, d = speed[i] / vmax, _safe_dist(speed[i], rule, params), fveh_dist[i]
@@ -120,7 +126,7 @@ def _scaled(term, scale):
 @jit
 def individual_state(speed, dist, leader_dist, leader_speed, vmax, params):
     """[vel / vel_max, pos / pos scale, fveh_dist / leader scale, fveh_vel / vel_max] of every vehicle, [n, 4]."""
-    pos_scale, leader_scale = params[12], params[13]
+    pos_scale, leader_scale = params[POS_SCALE_M], params[LEADER_SCALE_M]
     out = np.empty((speed.size, 4))
     for i in range(speed.size):
         out[i, 0], out[i, 1] = _scaled(speed[i], vmax), _scaled(dist[i], pos_scale)
@@ -135,7 +141,7 @@ def state_reward(col, speed, dist, leader_dist, leader_speed, junction, road, ce
     state[:, :4] = individual_state(speed, dist, leader_dist, leader_speed, vmax, params)
     col_term = np.zeros(speed.size)
     if col:
-        col_term, density = junction_terms(junction, road, centre_dist_m, speed, incoming_lanes, params[11])
+        col_term, density = junction_terms(junction, road, centre_dist_m, speed, incoming_lanes, params[INTER_TIME_S])
         state[:, 4], state[:, 5] = col_term, density
     return state, reward(col, speed, vmax, leader_dist, col_term, rule, params)
 

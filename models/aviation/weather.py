@@ -403,11 +403,12 @@ def _grid_frame(
     it, il, iy, ix = (np.argsort(a, kind="stable") for a in (times, levels, lat, lon))
     times, levels, lat, lon = times[it], levels[il], lat[iy], lon[ix]
     arrays = {column: values[np.ix_(it, il, iy, ix)] for column, values in arrays.items()}
-    for what, axis in (("time", times.view(np.int64)), ("level", levels), ("latitude", lat)):
-        if np.any(np.diff(axis) == 0):
-            raise WeatherError(f"{path}: duplicate {what} values in {axis}")
+    for what, axis in (("time", times), ("level", levels), ("latitude", lat)):
+        repeated = axis[1:][axis[1:] == axis[:-1]]
+        if repeated.size:  # named, not printed whole: a long axis would spread the message over many lines
+            raise WeatherError(f"{path}: duplicate {what} values: {_few(repeated)}")
     if not (levels > 0).all():
-        raise WeatherError(f"{path}: pressure levels must be positive, got {levels} hPa")
+        raise WeatherError(f"{path}: pressure levels must be positive, got {_few(levels[levels <= 0])} hPa")
 
     nt, nl, ny, nx = times.size, levels.size, lat.size, lon.size
     n = nt * nl * ny * nx
@@ -423,6 +424,12 @@ def _grid_frame(
         }
     )
     return frame.cast(WEATHER_SCHEMA)  # type: ignore[arg-type]
+
+
+def _few(values: np.ndarray, n: int = 3) -> str:
+    """The first distinct values, for a one-line message."""
+    distinct = list(dict.fromkeys(map(str, values)))
+    return ", ".join(distinct[:n]) + (f" and {len(distinct) - n} more" if len(distinct) > n else "")
 
 
 def _valid_times(ds: Any, path: Path) -> tuple[np.ndarray, str | None]:

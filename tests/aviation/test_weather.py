@@ -346,6 +346,19 @@ def test_bad_files(tmp_path):
     raises_one_line(read_weather, bad_hdf, match="cannot read .*broken.nc")
 
 
+def test_duplicate_coordinates_are_one_line(tmp_path):
+    """A long axis with repeated values is named by its first repeats, not printed whole over many lines."""
+    xr = pytest.importorskip("xarray")
+    lat = np.repeat(np.arange(100.0) / 2, 2)  # 200 latitudes, each twice
+    ds = xr.Dataset(
+        {k: (("time", "level", "latitude", "longitude"), np.full((1, 1, lat.size, 2), 220.0)) for k in ("t", "u", "v")},
+        coords={"time": np.array(["2019-01-05"], "datetime64[ns]"), "level": [250.0], "latitude": lat, "longitude": [0.0, 1.0]},
+    )
+    ds.to_netcdf(tmp_path / "dup.nc", engine="scipy")
+    message = raises_one_line(read_weather, tmp_path / "dup.nc", match="duplicate latitude values: 0.0, 0.5, 1.0 and 97 more")
+    assert len(message) < 200
+
+
 def test_missing_variables(tmp_path):
     xr = pytest.importorskip("xarray")
     ds = xr.Dataset(

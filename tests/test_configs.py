@@ -19,7 +19,7 @@ TRAINED = ["sc1", "real_cr"]
 def test_unset_fields_take_the_profile_and_set_ones_win():
     assert dcb_plan(DCBTrainingConfig(profile="demo")) == {"episodes": 200, "seeds": [0, 1, 2]}
     assert dcb_plan(DCBTrainingConfig(profile="paper", seeds=[3])) == {"episodes": 15000, "seeds": [3]}
-    assert dcb_plan(DCBTrainingConfig(profile="demo", methods=["MIRL", "sHMIRL"], hold="depart", c_plus=1e4))["episodes"] == 200
+    assert dcb_plan(DCBTrainingConfig(profile="demo", hold="depart", c_plus=1e4))["episodes"] == 200  # every method departs
     assert case_scales(CasesConfig(profile="paper")) == [0.95, 0.9, 0.85, 0.8]
     assert case_scales(CasesConfig(capacity_scales=[1.0, 0.9], max_delay_min=30)) == [1.0, 0.9]
     assert urban_plan(UrbanTrainingConfig(profile="demo"), TRAINED) == {
@@ -38,7 +38,7 @@ def test_unset_fields_take_the_profile_and_set_ones_win():
     (lambda: dcb_plan(DCBTrainingConfig(methods=["HCMARL2", "MIRL"])), r"DCB methods \['HCMARL2'\]: expected one or more of MIRL"),
     (lambda: dcb_plan(DCBTrainingConfig(methods=[])), "DCB methods none"),
     (lambda: dcb_plan(DCBTrainingConfig(reward="global")), "unknown DCB reward 'global'"),
-    (lambda: dcb_plan(DCBTrainingConfig(hold="depart")), "DCB hold 'depart' is implemented for MIRL, stHMIRL, sHMIRL and tHMIRL"),
+    (lambda: dcb_plan(DCBTrainingConfig(hold="depart", reward="overload")), "DCB hold 'depart' is implemented with the thesis state and reward only"),
     (lambda: dcb_plan(DCBTrainingConfig(c_plus=-1)), r"DCB C\+ -1.0 is not positive"),
     (lambda: case_scales(CasesConfig(capacity_scales=[0.951, 0.949])), r"give the cases \['cap95', 'cap95'\]"),
     (lambda: case_scales(CasesConfig(capacity_scales=[])), "expected one or more scales > 0"),

@@ -28,7 +28,7 @@ class TrainingConfig(dg.Config):
     readout: str = Field(default="repair", description="repair: the greedy rollout and the best training episode with hotspots left resolved FCFS "
                          "and unneeded delay trimmed; best_episode: the two as they are (the better one is returned)")
     hold: str = Field(default="wait", description="wait: a flight that holds acts again at the next step while in a hotspot; depart: holding (or leaving "
-                      "every hotspot) is departing, the flight never acts again in the episode (§5.4; MIRL, stHMIRL, sHMIRL, tHMIRL with the thesis state and reward)")
+                      "every hotspot) is departing, the flight never acts again in the episode (§5.4; thesis state and reward only)")
     c_plus: float = Field(default=C_PLUS, description="C+ of Eq 5.3, the reward of a flight in no hotspot (a large positive constant; the value is ours)")
     workers: int | None = Field(default=None, description="runs (case, method, seed) in parallel, one process each (None: usable cores); "
                                 "every run seeds itself, so the delays do not depend on it")
@@ -38,7 +38,7 @@ def training_plan(config: TrainingConfig) -> dict:
     """episodes and seeds of the config or its profile; one line, before any training, for an unknown or no method
     or an option the learners cannot use."""
     check_names("DCB methods", config.methods, METHODS)
-    check_options(config.state, config.reward, config.learning_rate, config.readout, config.hold, config.c_plus, config.methods)
+    check_options(config.state, config.reward, config.learning_rate, config.readout, config.hold, config.c_plus)
     return resolve(config, PROFILE)
 
 

@@ -11,6 +11,14 @@ Every edge (i, j) has a joint Q-function over the joint state s_ij = (s_i, s_j) 
 a*_ij in the target is the best joint action of the edge's own table at s'_ij (the next step's graph
 is not known yet when the edge is updated).
 
+hold="depart" (§5.4's "until it departs", see train.py; kernels.coordinated_episode): a flight that holds, or leaves
+every hotspot, never acts again in the episode, and stays in the graph while it is in a hotspot, as a peer whose action
+is 0: Eq 5.9's max and Eq 5.7's a*_ij range over the acting flights' actions only, and Eq 5.7 goes on while one of the
+edge's flights acts. An edge done for the episode - both its flights departed, or one departed and in no hotspot (the
+edge leaves the graph, Q_ij(s'_ij) would never be learned) - takes as the target of its last joint action what the two
+flights collect until the episode ends, each share divided by its degree then: Σ_k γ^k (r_i,t+k/|N(A_i)| + r_j,t+k/|N(A_j)|),
+MIRL's rule for a departed flight (Eq 5.6 with the return as target) applied to Eq 5.7's target.
+
 Storage: the joint tables Q_ij are tabular but sparse (a day has thousands of possible peer pairs
 and (states)^2 x 4 entries each), so they live in one [2^20, 4] array whose row is a multiplicative
 hash of the key ((i·n + j)·S + s_i)·S + s_j and whose 4 columns are the joint actions (one cache line
@@ -39,6 +47,7 @@ from models.dcb.mirl import GAMMA, LEARNING_RATE
 
 TABLE_BITS = 20
 GOLDEN = np.uint64(0x9E3779B97F4A7C15)  # the multiplicative hash's factor (2^64 / golden ratio)
+_NONE_DEPARTED = np.zeros(0, dtype=np.bool_)  # the kernels' hold="wait" (hold="depart" runs only in kernels.coordinated_episode)
 
 
 def hot_entry_codes(ev, n_flights: int) -> np.ndarray:
@@ -91,13 +100,13 @@ class CoordinatedQ:
         g = self._graph_of(ev)
         # the edges' rows and Q_ij(s_ij, ·) summed over the levels (joint action a_ij = 2·a_i + a_j), kept for the update
         self._now = kernels.joint_q(*self.lookup, g.edges, self.n_flights, state, GOLDEN, TABLE_BITS)
-        return kernels.coordinated_values(self._now[1], g.edges, self.n_flights, agents)
+        return kernels.coordinated_values(self._now[1], g.edges, self.n_flights, agents, _NONE_DEPARTED)
 
     def update(self, state, action, reward, next_state, agents) -> None:
         """Eq 5.7 on every edge of the graph the actions were chosen on."""
         g = self._graph
         kernels.coordinated_update(*self.lookup, g.edges, g.degree, self.n_flights, *self._now, action, reward, next_state,
-                                   self.lr, self.gamma, GOLDEN, TABLE_BITS)
+                                   self.lr, self.gamma, GOLDEN, TABLE_BITS, _NONE_DEPARTED, _NONE_DEPARTED, next_state[:0])
 
     def transferred(self, n_states: int, state_map: np.ndarray) -> "CoordinatedQ":
         """Ground-level learner whose Q starts at this (abstract) learner's Q(φ(s))."""

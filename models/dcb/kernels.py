@@ -277,17 +277,26 @@ def _maximum(a, b):
     return a if a >= b else b
 
 
+@jit(inline="always")
+def _peer_best(q_hold, q_delay, held):
+    """Q_ij's value for one's action given the peer's: the max over the peer's hold and delay, or its hold if it departed."""
+    return q_hold if held else _maximum(q_hold, q_delay)
+
+
 @jit
-def coordinated_values(q, edges, n_flights, agents):
+def coordinated_values(q, edges, n_flights, agents, departed):
     """Eq 5.9 (`CoordinatedQ.values`): Q_i(s_i, a_i) = ½ Σ_j max_{a_j} Q_ij of the agents from their edges' Q_ij (q) -> [agents, 2].
-    The sums run in edge order per flight and side (i end, j end), as the np.bincount they replaced."""
+    The sums run in edge order per flight and side (i end, j end), as the np.bincount they replaced. departed
+    (hold="depart", else empty): a departed peer j adds no more delay, so its a_j is 0, not the max."""
+    fixed = departed.size > 0
     sums = np.zeros((2, 2, n_flights))  # [a, side, flight]
     for e in range(edges.shape[1]):
         i, j = edges[0, e], edges[1, e]
-        sums[0, 0, i] += _maximum(q[e, 0], q[e, 1])  # seen from i, a_i = 0: max over a_j
-        sums[1, 0, i] += _maximum(q[e, 2], q[e, 3])
-        sums[0, 1, j] += _maximum(q[e, 0], q[e, 2])  # seen from j, a_j = 0: max over a_i
-        sums[1, 1, j] += _maximum(q[e, 1], q[e, 3])
+        held_i, held_j = fixed and departed[i], fixed and departed[j]
+        sums[0, 0, i] += _peer_best(q[e, 0], q[e, 1], held_j)  # seen from i, a_i = 0: max over a_j
+        sums[1, 0, i] += _peer_best(q[e, 2], q[e, 3], held_j)
+        sums[0, 1, j] += _peer_best(q[e, 0], q[e, 2], held_i)  # seen from j, a_j = 0: max over a_i
+        sums[1, 1, j] += _peer_best(q[e, 1], q[e, 3], held_i)
     out = np.empty((agents.size, 2))
     for k in range(agents.size):
         for a in range(2):
@@ -297,29 +306,67 @@ def coordinated_values(q, edges, n_flights, agents):
 
 @jit
 def coordinated_update(tables, state_map, level_states, edges, degree, n_flights, rows, q, action, reward, next_state, lr, gamma,
-                       golden, table_bits):
+                       golden, table_bits, departed, gone, hotspots):
     """Eq 5.7 (`CoordinatedQ.update`) on every edge, in place in level 0 of `tables`: rows and q are the edges' `joint_q`
     at the state the actions were chosen in. All targets are read before any row is written, then the float32 rows
-    are updated in edge order (two edges can share a hashed row), as np.add.at did."""
+    are updated in edge order (two edges can share a hashed row), as np.add.at did -> the edges left to `depart_edges`.
+    hold="depart" (else departed and gone are empty): departed, the flights departed before this step, gone, those and
+    the ones departing at it; hotspots: h_i after the step. A departed flight's action is 0 (it adds no more delay), in
+    the bootstrap too; an edge of two departed flights, which acted neither, is left alone. An edge done after this
+    step - both its flights gone, or one gone and in no hotspot (out of the graph for good: Q_ij at s' would never
+    be learned) - is not updated here but returned, its target being the rewards its flights collect until the episode
+    ends (`depart_edges`), as a departed flight's in MIRL (`depart_step`)."""
     _, q_next = joint_q(tables, state_map, level_states, edges, n_flights, next_state, golden, table_bits)
-    step = np.empty(edges.shape[1], dtype=np.float32)
+    depart = gone.size > 0
+    step = np.zeros(edges.shape[1], dtype=np.float32)  # 0: the edge is left alone here
+    pending, n_pending = np.empty(edges.shape[1] if depart else 0, dtype=np.int64), 0
     for e in range(step.size):
         i, j = edges[0, e], edges[1, e]
-        best = _maximum(_maximum(_maximum(q_next[e, 0], q_next[e, 1]), q_next[e, 2]), q_next[e, 3])
+        if depart and ((gone[i] and gone[j]) or (gone[i] and hotspots[i] == 0) or (gone[j] and hotspots[j] == 0)):
+            if not (departed[i] and departed[j]):
+                pending[n_pending] = e
+                n_pending += 1
+            continue
+        if depart and (gone[i] or gone[j]):  # the bootstrap's best joint action with the gone flight's a = 0
+            best = -np.inf
+            for a in range(4):
+                if not ((gone[i] and a >= 2) or (gone[j] and a % 2 == 1)):
+                    best = _maximum(best, q_next[e, a])
+        else:
+            best = _maximum(_maximum(_maximum(q_next[e, 0], q_next[e, 1]), q_next[e, 2]), q_next[e, 3])
         target = reward[i] / degree[i] + reward[j] / degree[j] + gamma * best
         step[e] = np.float32(lr * (target - q[e, 2 * action[i] + action[j]]))
     for e in range(step.size):
         tables[rows[e], 2 * action[edges[0, e]] + action[edges[1, e]]] += step[e]
+    return pending[:n_pending]
+
+
+@jit
+def depart_edges(tables, tail, returns, lr):
+    """hold="depart": Eq 5.7 for every edge `coordinated_update` returned, with what its two flights collected from that
+    step to the episode's end, each share divided by its degree then, as the target. tail: [edge] level-0 row, joint
+    action, Q_ij when chosen, i, j, |N(A_i)|, |N(A_j)|, i's and j's discounted returns before that step, γ^step;
+    returns: every flight's Σ_t γ^t r_t over the episode. Rows updated in order, as np.add.at does."""
+    for k in range(tail.shape[0]):
+        i, j = np.int64(tail[k, 3]), np.int64(tail[k, 4])
+        collected = (returns[i] - tail[k, 7]) / tail[k, 5] + (returns[j] - tail[k, 8]) / tail[k, 6]
+        tables[np.int64(tail[k, 0]), np.int64(tail[k, 1])] += np.float32(lr * (collected / tail[k, 9] - tail[k, 2]))
 
 
 @jit
 def coordinated_episode(rng, tables, state_map, level_states, golden, table_bits, delay, state, agents, hot_key, hot_flight, hotspots, eps,
-                        n_steps, action_step, state_step, learn, lr, gamma, delay_cost, entries, h_cap, cost_per_min, c_plus):
+                        n_steps, action_step, state_step, learn, lr, gamma, delay_cost, entries, h_cap, cost_per_min, c_plus, depart):
     """`train.run_episode` for CMARL and HCMARL (CoordinatedQ) with the thesis state and reward, as `independent_episode`
     for MIRL: the peer graph of the step's hot entries (kept while they stay the same), Eq 5.9, the draws and the
-    ε-greedy choice, the evaluation, Eq 5.7 -> (delays, hotspots). hot_key, hot_flight: the hot entries at the start."""
+    ε-greedy choice, the evaluation, Eq 5.7 -> (delays, hotspots). hot_key, hot_flight: the hot entries at the start.
+    depart: hold="depart" - the step's agents that held, or whose delay took them out of every hotspot, depart and never
+    act again; a departed flight stays in its hotspots' graph as a peer that holds (`coordinated_values`,
+    `coordinated_update`, `depart_edges`); else a flight that holds acts again at the next step while it is in a hotspot."""
     n_flights = delay.size
     signature, (edges, degree) = hot_key[:0], peer_graph(hot_key[:0], hot_flight[:0], n_flights)  # none yet (typed as the loop's)
+    departed = np.zeros(n_flights if depart else 0, dtype=np.bool_)
+    returns, discount = np.zeros(departed.size), 1.0  # Σ_t γ^t r_t of every flight so far, γ^t
+    tail, n_tail = np.empty((16 if depart and learn else 0, 10)), 0  # `depart_edges`'s
     for _ in range(n_steps):
         if agents.size == 0:
             break
@@ -327,13 +374,32 @@ def coordinated_episode(rng, tables, state_map, level_states, golden, table_bits
         if codes.size != signature.size or (codes != signature).any():
             signature, (edges, degree) = codes, peer_graph(hot_key, hot_flight, n_flights)
         rows, q = joint_q(tables, state_map, level_states, edges, n_flights, state, golden, table_bits)
-        values = coordinated_values(q, edges, n_flights, agents)
+        values = coordinated_values(q, edges, n_flights, agents, departed)
         explore_draw, coin = rng.random(agents.size), rng.integers(0, 2, agents.size)
         action, _, delay = act(delay, agents, values, explore_draw, coin, eps, action_step)
         _, _, hot, _, _, h, tdc, hot_key, hot_flight = evaluate(delay, *entries, False, True)
         next_state = local_state(delay, h, delay[:0], state_step, 1, h_cap)
+        gone = departed.copy()
+        if depart:
+            for i in agents:
+                gone[i] = action[i] == 0 or h[i] == 0
         if learn:
-            coordinated_update(tables, state_map, level_states, edges, degree, n_flights, rows, q, action,
-                               thesis_reward(tdc, delay_cost, delay, cost_per_min, c_plus), next_state, lr, gamma, golden, table_bits)
-        state, agents, hotspots = next_state, (h > 0).nonzero()[0], hot.sum()
+            reward = thesis_reward(tdc, delay_cost, delay, cost_per_min, c_plus)
+            pending = coordinated_update(tables, state_map, level_states, edges, degree, n_flights, rows, q, action, reward, next_state,
+                                         lr, gamma, golden, table_bits, departed, gone, h)
+            if n_tail + pending.size > tail.shape[0]:
+                tail = np.concatenate((tail[:n_tail], np.empty((max(tail.shape[0], pending.size), 10))))
+            for e in pending:
+                i, j = edges[0, e], edges[1, e]
+                a = 2 * action[i] + action[j]
+                tail[n_tail, 0], tail[n_tail, 1], tail[n_tail, 2], tail[n_tail, 3], tail[n_tail, 4] = rows[e], a, q[e, a], i, j
+                tail[n_tail, 5], tail[n_tail, 6], tail[n_tail, 7], tail[n_tail, 8], tail[n_tail, 9] = degree[i], degree[j], returns[i], returns[j], discount
+                n_tail += 1
+            if depart:
+                returns += discount * reward
+                discount *= gamma
+        departed = gone
+        state, agents, hotspots = next_state, ((h > 0) & ~departed if depart else h > 0).nonzero()[0], hot.sum()
+    if n_tail:
+        depart_edges(tables, tail[:n_tail], returns, lr)
     return delay, hotspots

@@ -25,13 +25,17 @@ Options beyond the thesis (defaults: the thesis's, but for the read-out), see do
 - reward="difference": each flight is rewarded with what its own action changed in the day's total
   of Eq 5.2 (DCBProblem.difference_reward) instead of its local Eq 5.2 reward; reward="overload": the
   same for the day's overload, entries beyond capacity (DCBProblem.overload_reward);
-- hold="depart" (MIRL and its hierarchical variants, thesis state and reward): §5.4's "the agent is responsible for
+- hold="depart" (every method, thesis state and reward): §5.4's "the agent is responsible for
   distributing delay units to the corresponding flight until it departs ... Afterwards ... without the possibility to
   receive additional delay" read literally. A flight that holds, or whose delay took it out of every hotspot, departs:
   it never acts again in the episode, and its last action is valued by the rewards it still collects until the episode
   ends (its congestion as the others move) instead of by Q of a state it will act in. With hold="wait" (default) a
   flight that holds faces the same state at the next step, so "hold" in a hotspot nobody clears yet bootstraps from
-  itself (-81 · TDC per step) and every flight of a hotspot learns to delay (docs/dcb.md, "What we learned");
+  itself (-81 · TDC per step) and every flight of a hotspot learns to delay (docs/dcb.md, "What we learned").
+  CMARL / HCMARL: a departed flight stays in its hotspots' coordination graph as a peer whose action is 0 (Eq 5.7's
+  bootstrap and Eq 5.9's max range over the acting flights' actions only); an edge keeps Eq 5.7 while one of its
+  flights acts, and once it is done (both departed, or one departed and in no hotspot) its last joint action is valued
+  by the two flights' shares of the rewards they collect until the episode ends (models/dcb/cmarl.py);
 - c_plus: the value of C₊ (Eq 5.3, "a large positive constant"; ours, default 100); with hold="depart" a departed
   flight collects it at every step it spends out of hotspots, so it weighs how much leaving a hotspot is worth.
 
@@ -70,7 +74,7 @@ STATES = {"thesis": 1, "extended": 2}  # local state -> values of its extra comp
 REWARDS = ("thesis", "difference", "overload")
 READOUTS = ("repair", "best_episode")  # the solution read out of a trained policy, see the module docstring
 HOLDS = ("wait", "depart")  # what holding means for a flight in a hotspot, see the module docstring
-DEPART_ONLY = "DCB hold 'depart' is implemented for MIRL, stHMIRL, sHMIRL and tHMIRL with the thesis state and reward only"
+DEPART_ONLY = "DCB hold 'depart' is implemented with the thesis state and reward only (the compiled episodes of MIRL's and CMARL's learners)"
 
 
 @dataclass(frozen=True)
@@ -146,9 +150,10 @@ def _independent_episode(problem: DCBProblem, learner: IndependentQ, level: Leve
 def _coordinated_episode(problem: DCBProblem, learner: CoordinatedQ, level: Level, eps: float, rng: np.random.Generator, learn: bool,
                          delay: np.ndarray, state: np.ndarray, ev, c_plus: float, hold: str) -> tuple[np.ndarray, int]:
     """`run_episode` for CMARL and HCMARL with the thesis state and reward: one kernel call for the whole episode
-    (`kernels.coordinated_episode`; hold is always "wait" here, `run_episode` refuses "depart")."""
+    (`kernels.coordinated_episode`)."""
     delay, hotspots = kernels.coordinated_episode(rng, *learner.lookup, GOLDEN, TABLE_BITS, delay, state, (ev.hotspots_per_flight > 0).nonzero()[0],
-                                                  ev.hot_key, ev.hot_flight, ev.hotspots, *_episode_tail(problem, learner, level, eps, learn, c_plus))
+                                                  ev.hot_key, ev.hot_flight, ev.hotspots, *_episode_tail(problem, learner, level, eps, learn, c_plus),
+                                                  hold == "depart")
     return delay, int(hotspots)
 
 
@@ -169,7 +174,7 @@ def run_episode(problem: DCBProblem, learner, level: Level, eps: float, rng: np.
     # learner type, a subclass or a wrapper included, takes the loop: its values and update are called)
     compiled = {IndependentQ: _independent_episode, CoordinatedQ: _coordinated_episode}.get(type(learner))
     takes_compiled = compiled is not None and level.n_extra == 1 and (reward == "thesis" or not learn)
-    if hold == "depart" and not (takes_compiled and compiled is _independent_episode):  # only MIRL's compiled episode departs
+    if hold == "depart" and not takes_compiled:  # only the compiled episodes depart
         raise ValueError(DEPART_ONLY)
     if takes_compiled:
         return compiled(problem, learner, level, eps, rng, learn, delay, state, ev, c_plus, hold)
@@ -200,9 +205,8 @@ def _make(learner_cls, problem: DCBProblem, n_states: int, lr: float):
     return IndependentQ(problem.n_flights, n_states, lr=lr)
 
 
-def check_options(state: str, reward: str, learning_rate: float, readout: str, hold: str = "wait", c_plus: float = C_PLUS,
-                  methods: list[str] | tuple = ()) -> None:
-    """One line for an option `train` cannot use with these methods (dcb_delays asks before it starts any training)."""
+def check_options(state: str, reward: str, learning_rate: float, readout: str, hold: str = "wait", c_plus: float = C_PLUS) -> None:
+    """One line for an option `train` cannot use (dcb_delays asks before it starts any training)."""
     if state not in STATES:
         raise ValueError(f"unknown DCB local state {state!r}: expected one of {', '.join(STATES)}")
     if reward not in REWARDS:
@@ -215,7 +219,7 @@ def check_options(state: str, reward: str, learning_rate: float, readout: str, h
         raise ValueError(f"unknown DCB hold {hold!r}: expected one of {', '.join(HOLDS)}")
     if not c_plus > 0:
         raise ValueError(f"DCB C+ {c_plus} is not positive (Eq 5.3: a large positive constant)")
-    if hold == "depart" and (state != "thesis" or reward != "thesis" or any(METHODS[m][0] is not IndependentQ for m in methods)):
+    if hold == "depart" and (state != "thesis" or reward != "thesis"):
         raise ValueError(DEPART_ONLY)
 
 
@@ -228,7 +232,7 @@ def train(problem: DCBProblem, method: str, seed: int, episodes: int = EPISODES,
     per flight), "difference" (`DCBProblem.difference_reward`) or "overload" (`DCBProblem.overload_reward`); learning_rate:
     η of Eq 5.6 / 5.7 (thesis 0.01); readout: "repair" (greedy rollout and best episode each through `readout.polish`)
     or "best_episode" (the two as they are); hold: "wait" or "depart" (module docstring); c_plus: C₊ of Eq 5.3."""
-    check_options(state, reward, learning_rate, readout, hold, c_plus, [method])
+    check_options(state, reward, learning_rate, readout, hold, c_plus)
     learner_cls, abstract = METHODS[method]
     ground = replace(GROUND, n_extra=STATES[state])
     abstract = abstract and replace(abstract, n_extra=STATES[state])

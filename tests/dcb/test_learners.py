@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from models.dcb.loop import PerFlightEpisodes, PerFlightQ
-from models.dcb.cmarl import CoordinatedQ
+from models.dcb import kernels
+from models.dcb.cmarl import GOLDEN, TABLE_BITS, CoordinatedQ
 from models.dcb.mirl import IndependentQ
 from models.dcb.optimum import solve_optimum
 from models.dcb.train import ABSTRACT_STEP_MIN, GROUND, METHODS, Level, run_episode, train, train_job
@@ -143,6 +144,66 @@ def test_hold_depart_ends_a_flights_turn_and_values_it_by_what_follows(c_plus):
     assert q["wait"].q[0, s0, 0] == pytest.approx(-8.1, rel=1e-12)
 
 
+def _edge_rows(learner, edges, delay, hotspots):
+    """Level-0 rows of the coordination edges' Q_ij at the flights' ground states for these delays and hotspots."""
+    state = GROUND.state(np.array(delay), np.array(hotspots))
+    return kernels.joint_q(*learner.lookup, np.array(edges), learner.n_flights, state, GOLDEN, TABLE_BITS)[0]
+
+
+@pytest.mark.parametrize("c_plus", [100.0, 1000.0])
+def test_hold_depart_coordinated_edges_are_valued_by_what_follows(c_plus):
+    """CMARL, hold="depart", a hand-computed greedy episode on two hotspots of two flights (ties hold): A of
+    `_two_flights_one_hotspot` (f1, f2), B of f3 at 00:30 and f4 at 00:40, 10 min each. Q_12 is primed: [0, 1, 0, 0]
+    (joint actions (a1, a2) = 00, 01, 10, 11) at s = (0, 0) so f1 holds and f2 delays; [0, 1, 3, 2] at s' = (0, 1).
+    Step 1: f1, f3, f4 hold and depart, f2 delays to 00:59 (r = -810, -830, -810, -810). f1 departed, Eq 5.7's
+    bootstrap at s' takes a1 = 0: max(0, 1), not 3. Both of B's flights are gone: its edge waits for the episode's end.
+    Step 2: f2 alone acts; f1's a1 is 0 in Eq 5.9 (Q_2 = ½ (0, 1): delay, where the max over a1 would say hold) and it
+    leaves A: the edge is done, valued by C+ + C+ - 40. B's edge: -1620 at both steps, -1620 (1 + γ).
+    With hold="wait" the bootstrap at step 1 takes the max over all four, 3."""
+    p = make_problem([("f1", "A", 30, 10), ("f2", "A", 58, 10), ("f3", "B", 30, 10), ("f4", "B", 40, 10)], {"A": 1, "B": 1})
+    lr, gamma, edges = 0.01, 0.99, [[0, 2], [1, 3]]
+    q = {}
+    for hold in ("depart", "wait"):
+        q[hold] = CoordinatedQ(4, GROUND.n_states(p.max_delay_min))
+        s, s1 = _edge_rows(q[hold], edges, [0, 0, 0, 0], [1] * 4), _edge_rows(q[hold], edges, [0, 1, 0, 0], [1] * 4)
+        q[hold].table[s[0]], q[hold].table[s1[0]] = [0, 1, 0, 0], [0, 1, 3, 2]
+        d, hot = run_episode(p, q[hold], GROUND, 0.0, np.random.default_rng(0), hold=hold, c_plus=c_plus)
+        if hold == "depart":
+            assert d.tolist() == [0, 2, 0, 0] and hot == 1
+    assert q["depart"].table[s[0], 1] == pytest.approx(1 + lr * (-1640 + gamma * 1 - 1), rel=1e-6)
+    assert q["wait"].table[s[0], 1] == pytest.approx(1 + lr * (-1640 + gamma * 3 - 1), rel=1e-6)
+    assert q["depart"].table[s1[0]].tolist() == pytest.approx([0, 1 + lr * (2 * c_plus - 40 - 1), 3, 2], rel=1e-6)
+    assert q["depart"].table[s[1]].tolist() == pytest.approx([lr * -1620 * (1 + gamma), 0, 0, 0], rel=1e-6)
+
+
+@pytest.mark.parametrize("c_plus", [100.0, 1000.0])
+def test_hold_depart_an_edge_that_leaves_the_graph_is_valued_by_what_follows(c_plus):
+    """CMARL, hold="depart", hand-computed: sector C (capacity 1) with f1 at 00:59, f2 at 00:20, f3 at 00:25, 10 min each.
+    Primed at s = (0, 0, 0): Q_12 = [0, 0, 1, 0], Q_23 = [0, 0, 3, 0] (joint actions 00, 01, 10, 11), so f1 delays out of C,
+    f2 delays and stays in it, f3 holds (Eq 5.9, degree 2 each). Step 1: r = C+ - 20, -830, -810. f1 is gone and in no
+    hotspot: its edges (joint actions 11 and 10) leave the graph for good and wait for the episode's end; f3 gone, f2
+    acting: Q_23 by Eq 5.7 with
+    a3 = 0 in the bootstrap, r2/2 + r3/2 + γ · 0. Step 2: f2 alone acts, holds (Q_23 = 0 at s'') and departs: Q_23(s'') by
+    r2 + r3 = -1,640. Q_12, Q_13 by the two steps' shares: (1 + γ)(C+ - 20 - 830) / 2, (1 + γ)(C+ - 20 - 810) / 2. With
+    hold="wait" Q_12 bootstraps from Q_12 at s', which is never learned (0): (C+ - 20 - 830) / 2."""
+    p = make_problem([("f1", "C", 59, 10), ("f2", "C", 20, 10), ("f3", "C", 25, 10)], {"C": 1})
+    lr, gamma = 0.01, 0.99
+    q = {}
+    for hold in ("depart", "wait"):
+        q[hold] = CoordinatedQ(3, GROUND.n_states(p.max_delay_min))
+        s = _edge_rows(q[hold], [[0, 0, 1], [1, 2, 2]], [0, 0, 0], [1, 1, 1])
+        s2 = _edge_rows(q[hold], [[1], [2]], [1, 1, 0], [0, 1, 1])
+        q[hold].table[s[0], 2], q[hold].table[s[2], 2] = 1, 3
+        d, hot = run_episode(p, q[hold], GROUND, 0.0, np.random.default_rng(0), hold=hold, c_plus=c_plus)
+        if hold == "depart":
+            assert d.tolist() == [1, 1, 0] and hot == 1
+    assert q["depart"].table[s[0]].tolist() == pytest.approx([0, 0, 1, lr * (1 + gamma) * (c_plus - 850) / 2], rel=1e-6)
+    assert q["depart"].table[s[1], 2] == pytest.approx(lr * (1 + gamma) * (c_plus - 830) / 2, rel=1e-6)
+    assert q["depart"].table[s[2], 2] == pytest.approx(3 + lr * (-820 - 3), rel=1e-6)
+    assert q["depart"].table[s2[0]].tolist() == pytest.approx([lr * -1640, 0, 0, 0], rel=1e-6)
+    assert q["wait"].table[s[0]].tolist() == pytest.approx([0, 0, 1, lr * (c_plus - 850) / 2], rel=1e-6)
+
+
 def test_hold_depart_greedy_policy_resolves_the_small_case(small_case):
     """MIRL and sHMIRL, seed 0, 40 episodes: with hold="depart" and C+ = 10,000 the greedy policy itself leaves no
     hotspot (MIRL 50 min, sHMIRL 58, optimum 20), where the default's leaves 3 (so a training episode is returned)."""
@@ -159,11 +220,12 @@ def test_hold_and_c_plus_options_are_checked_in_one_line(small_case):
         train(small_case, "MIRL", seed=0, episodes=1, hold="stay")
     with pytest.raises(ValueError, match=r"^DCB C\+ 0.0 is not positive"):
         train(small_case, "MIRL", seed=0, episodes=1, c_plus=0.0)
-    for method, options in (("CMARL", {}), ("HCMARL", {}), ("MIRL", {"reward": "overload"}), ("sHMIRL", {"state": "extended"})):
-        with pytest.raises(ValueError, match="^DCB hold 'depart' is implemented for MIRL, stHMIRL, sHMIRL and tHMIRL with the thesis state"):
+    for method, options in (("CMARL", {"reward": "overload"}), ("MIRL", {"reward": "overload"}), ("sHMIRL", {"state": "extended"}),
+                            ("HCMARL", {"state": "extended"})):
+        with pytest.raises(ValueError, match=r"^DCB hold 'depart' is implemented with the thesis state and reward only \(the compiled"):
             train(small_case, method, seed=0, episodes=1, hold="depart", **options)
     with pytest.raises(ValueError, match="^DCB hold 'depart' is implemented"):  # the learner's type decides, also outside train
-        run_episode(small_case, CoordinatedQ(small_case.n_flights, GROUND.n_states(60)), GROUND, 0.5, np.random.default_rng(0), hold="depart")
+        run_episode(small_case, PerFlightQ(small_case.n_flights, GROUND.n_states(60)), GROUND, 0.5, np.random.default_rng(0), hold="depart")
 
 
 def test_hold_depart_a_flight_that_leaves_every_hotspot_departs():

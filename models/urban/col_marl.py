@@ -133,6 +133,19 @@ class EpisodeResult:
     vehicle_substeps: int = 0  # vehicles x simulation steps, for throughput figures
 
 
+PER_VEHICLE = ("reward", "next_state", "done")  # rollout buffers kept as one item per vehicle and decision, the others per decision
+
+
+def _as_array(key: str, items: list) -> np.ndarray:
+    """A rollout buffer as one array: the per-decision arrays concatenated, the per-vehicle items (PER_VEHICLE) made into
+    one array at the end (cheaper than an array per decision)."""
+    if not items:
+        return np.zeros(0)
+    if key in PER_VEHICLE:
+        return np.array(items, np.float32 if key == "next_state" else float)
+    return np.concatenate(items)
+
+
 def run_episode(job: EpisodeJob) -> EpisodeResult:
     """Roll out one episode with ε-greedy route agents; returns every vehicle's transitions."""
     rng = np.random.default_rng(job.seed)
@@ -141,8 +154,7 @@ def run_episode(job: EpisodeJob) -> EpisodeResult:
     n_actions = env.action_space(None).n
     index = {a: i for i, a in enumerate(job.agents)}
     agent_of = {v: index[route_agent(v)] for v in env.possible_agents}  # vehicle -> its route agent's index
-    buf = {k: [] for k in ("agent_idx", "state", "action", "reward", "next_state", "done")}  # arrays per decision ...
-    per_vehicle = ("reward", "next_state", "done")  # ... or, for these, one item per vehicle and decision: one array at the end
+    buf = {k: [] for k in ("agent_idx", "state", "action", "reward", "next_state", "done")}  # see _as_array
     if job.shield:  # the masks each action was chosen under, and those of the next state (the learner's bootstrap)
         buf["allowed"], buf["next_allowed"] = [], []
     try:
@@ -174,8 +186,7 @@ def run_episode(job: EpisodeJob) -> EpisodeResult:
         frames, collided, substeps = env.frames, set(env.sim.tally.collided), env.sim.tally.vehicle_substeps
     finally:
         env.close()
-    transitions = {k: (np.array(v, np.float32 if k == "next_state" else float) if k in per_vehicle else np.concatenate(v)) if v else np.zeros(0)
-                   for k, v in buf.items()}
+    transitions = {k: _as_array(k, v) for k, v in buf.items()}
     # each agent's rewards summed in the order they came, as np.add.at per decision would (bincount adds in input order)
     returns = np.bincount(transitions["agent_idx"].astype(np.int64), transitions["reward"], len(job.agents))
     with np.errstate(invalid="ignore", divide="ignore"):

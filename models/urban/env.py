@@ -46,7 +46,7 @@ from pettingzoo import ParallelEnv
 from models.urban import kernels
 from models.urban.network import UrbanInputError, read_net
 from models.urban.scenarios import ACTIONS_MPS2, MIN_GAP_M, VEHICLE_TYPES
-from models.urban.sim import ACTION_S, SPEED_MODE_CAR_FOLLOWING, SPEED_MODE_FREE, SPEED_MODE_SUMO, ScenarioFiles, Simulation, _raw
+from models.urban.sim import ACTION_S, SPEED_MODE_CAR_FOLLOWING, SPEED_MODE_FREE, SPEED_MODE_SUMO, ScenarioFiles, Simulation
 
 GOAL_REWARD = 1000.0  # L of Eq 4.3 (not given; "not sensitive"): a second of delay must cost more ((1 - γ) L = 10) than Eq 4.6 saves by stopping (c2 + f(v) ≤ 6)
 SAFE_DIST_M = 20.0  # safe_dist of Eq 4.5-4.7 (thesis); the floor of the speed-dependent rules below
@@ -436,9 +436,7 @@ class UrbanParallelEnv(ParallelEnv):
         is_car = np.fromiter(map(self.is_car.__getitem__, ids), bool, len(ids))
         # speed mode 32 follows orders beyond the limits: keep 0 <= v <= vel_max over the held second
         accel = kernels.accelerations(action, is_car, speed, _CAR_MPS2, _HEAVY_MPS2, self.vmax, ACTION_S)
-        set_acceleration = _raw().vehicle_setAcceleration  # libsumo's C setter (its Python wrapper adds a frame per vehicle)
-        for v, a in zip(ids, accel.tolist()):
-            set_acceleration(v, a, ACTION_S)
+        self.sim.set_accelerations(ids, accel.tolist(), ACTION_S)
 
     def individual_state(self, snap, dist: np.ndarray) -> np.ndarray:
         """[vel / vel_max, pos / 200 m, fveh_dist / 200 m, fveh_vel / vel_max] (-1: no front vehicle), [n, 4]."""

@@ -270,6 +270,12 @@ class Simulation:
         return Snapshot(t=raw.simulation_getTime(), ids=ids, speed=rows[0], lane_pos=rows[1], lane_len=lane_len, lane=lane, lane_code=code,
                         route_index=route_index, x=x, y=y, accel=accel, fuel_mgps=rows[3], leader_dist=leader_dist, leader_speed=rows[8])
 
+    def set_accelerations(self, ids: list, accel_mps2: list, seconds: float) -> None:
+        """Each vehicle's acceleration, held for `seconds` (libsumo's C setter: its Python wrapper adds a frame per vehicle)."""
+        set_acceleration = _raw().vehicle_setAcceleration
+        for v, a in zip(ids, accel_mps2):
+            set_acceleration(v, a, seconds)
+
     def waiting_s(self, ids: list) -> np.ndarray:
         """SUMO's waiting time of these vehicles (s spent below 0.1 m/s since they last moved), with its C getter."""
         return np.fromiter(map(_raw().vehicle_getWaitingTime, ids), float, len(ids))

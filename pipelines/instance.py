@@ -15,14 +15,16 @@ class InstanceError(ValueError):
 
 def dagster_home() -> Path:
     """$DAGSTER_HOME if set; else $TRAFFICLEARN_HOME/dagster, as `make` sets it, with the checkout's dagster.yaml
-    copied in when it has none. Exported, so that Dagster and its child processes use it too."""
+    copied in when it has none or an older one (the Makefile's rule: a changed checkout reaches the instance however
+    the command is run). Exported, so that Dagster and its child processes use it too."""
     given = bool(os.environ.get("DAGSTER_HOME"))
     path = Path(os.environ["DAGSTER_HOME"]).expanduser().resolve() if given else home() / "dagster"
     try:
         path.mkdir(parents=True, exist_ok=True)
     except OSError as e:  # a file there, or a file on the way (e.g. TRAFFICLEARN_HOME)
         raise InstanceError(f"{'DAGSTER_HOME' if given else 'the Dagster instance'} {path}: not a usable folder ({e.strerror})") from None
-    if not given and not (path / "dagster.yaml").exists():
-        replace_atomically(path / "dagster.yaml", lambda tmp: shutil.copyfile(TEMPLATE, tmp), ".yaml")
+    own = path / "dagster.yaml"
+    if not given and (not own.exists() or own.stat().st_mtime < TEMPLATE.stat().st_mtime):
+        replace_atomically(own, lambda tmp: shutil.copyfile(TEMPLATE, tmp), ".yaml")
     os.environ["DAGSTER_HOME"] = str(path)
     return path

@@ -135,6 +135,19 @@ def test_a_relative_dagster_home_is_exported_absolute_and_an_own_dagster_yaml_is
     assert (tmp_path / "home" / "dagster" / "dagster.yaml").read_text() == "telemetry:\n  enabled: false\n"
 
 
+def test_an_instance_dagster_yaml_older_than_the_checkouts_is_replaced_as_make_does(tmp_path, monkeypatch):
+    monkeypatch.setenv("TRAFFICLEARN_HOME", str(tmp_path))
+    monkeypatch.setenv("DAGSTER_HOME", "")
+    monkeypatch.delenv("DAGSTER_HOME")
+    stale = tmp_path / "dagster" / "dagster.yaml"
+    stale.parent.mkdir()
+    stale.write_text("telemetry:\n  enabled: true\n")
+    old = TEMPLATE.stat().st_mtime - 60
+    os.utime(stale, (old, old))
+    dagster_home()
+    assert stale.read_text() == TEMPLATE.read_text()
+
+
 def test_a_file_where_the_instance_goes_is_one_line(tmp_path, monkeypatch, capsys):
     (tmp_path / "file").write_text("")
     monkeypatch.setenv("DAGSTER_HOME", str(tmp_path / "file"))

@@ -20,6 +20,14 @@ import numpy as np
 
 from models.jit import jit
 
+# hold="depart": columns of a departed flight's pending value (`depart_step` writes, `depart_end` reads)
+FLIGHT_STATE, FLIGHT_ACTION, FLIGHT_RETURN, FLIGHT_DISCOUNT = range(4)
+FLIGHT_COLUMNS = FLIGHT_DISCOUNT + 1
+# ... and of a finished edge's (`coordinated_episode` writes, `depart_edges` reads): its level-0 row, joint action, Q_ij
+# when chosen, its flights i and j, their degrees, their discounted returns before that step, γ^step
+EDGE_ROW, EDGE_ACTION, EDGE_Q, EDGE_I, EDGE_J, EDGE_DEGREE_I, EDGE_DEGREE_J, EDGE_RETURN_I, EDGE_RETURN_J, EDGE_DISCOUNT = range(10)
+EDGE_COLUMNS = EDGE_DISCOUNT + 1
+
 
 @jit(inline="always")
 def _key(e, shifted, key_base, whole_min, flight, delay_min, within_hour):
@@ -136,21 +144,20 @@ def act(delay, agents, q, explore_draw, coin, eps, action_step):
 def depart_step(q, state, action, reward, next_state, agents, hotspots, departed, tail, learn, lr, gamma):
     """hold="depart" (`train.run_episode`): the step's agents that held, or whose delay took them out of every hotspot,
     depart - they never act again in the episode - and their last action is valued by the rewards they collect from
-    this step to the episode's end (tail: [flight] state, action, discounted return, discount; state -1: not departed
-    with a pending value), whose update `depart_end` makes; the other agents get Eq 5.6. Flights that departed at
+    this step to the episode's end (tail: [flight] FLIGHT_* columns; state -1: not departed with a pending value), whose update `depart_end` makes; the other agents get Eq 5.6. Flights that departed at
     earlier steps add this step's reward to their return. reward is read only when learn."""
     if learn:
         for i in range(departed.size):
-            if tail[i, 0] >= 0:
-                tail[i, 2] += tail[i, 3] * reward[i]
-                tail[i, 3] *= gamma
+            if tail[i, FLIGHT_STATE] >= 0:
+                tail[i, FLIGHT_RETURN] += tail[i, FLIGHT_DISCOUNT] * reward[i]
+                tail[i, FLIGHT_DISCOUNT] *= gamma
     stay = np.empty(agents.size, dtype=np.int64)
     n_stay = 0
     for i in agents:
         if action[i] == 0 or hotspots[i] == 0:
             departed[i] = True
             if learn:
-                tail[i, 0], tail[i, 1], tail[i, 2], tail[i, 3] = state[i], action[i], reward[i], gamma
+                tail[i, FLIGHT_STATE], tail[i, FLIGHT_ACTION], tail[i, FLIGHT_RETURN], tail[i, FLIGHT_DISCOUNT] = state[i], action[i], reward[i], gamma
         else:
             stay[n_stay] = i
             n_stay += 1
@@ -162,9 +169,9 @@ def depart_step(q, state, action, reward, next_state, agents, hotspots, departed
 def depart_end(q, tail, lr):
     """hold="depart": Eq 5.6 for every departed flight's last action, with the return it collected as its target."""
     for i in range(tail.shape[0]):
-        if tail[i, 0] >= 0:
-            s, a = np.int64(tail[i, 0]), np.int64(tail[i, 1])
-            q[i, s, a] += lr * (tail[i, 2] - q[i, s, a])
+        if tail[i, FLIGHT_STATE] >= 0:
+            s, a = np.int64(tail[i, FLIGHT_STATE]), np.int64(tail[i, FLIGHT_ACTION])
+            q[i, s, a] += lr * (tail[i, FLIGHT_RETURN] - q[i, s, a])
 
 
 @jit
@@ -177,7 +184,7 @@ def independent_episode(rng, q, delay, state, agents, hotspots, eps, n_steps, ac
     delays); delays stay within [0, MaxDelay] (see `run_episode`), so `evaluate`'s status is always 0. depart: hold="depart"
     (`depart_step`), else a flight that holds acts again at the next step while it is in a hotspot."""
     departed = np.zeros(delay.size if depart else 0, dtype=np.bool_)
-    tail = np.full((departed.size, 4), -1.0)
+    tail = np.full((departed.size, FLIGHT_COLUMNS), -1.0)
     for _ in range(n_steps):
         if agents.size == 0:
             break
@@ -344,13 +351,13 @@ def coordinated_update(tables, state_map, level_states, edges, degree, n_flights
 @jit
 def depart_edges(tables, tail, returns, lr):
     """hold="depart": Eq 5.7 for every edge `coordinated_update` returned, with what its two flights collected from that
-    step to the episode's end, each share divided by its degree then, as the target. tail: [edge] level-0 row, joint
-    action, Q_ij when chosen, i, j, |N(A_i)|, |N(A_j)|, i's and j's discounted returns before that step, γ^step;
+    step to the episode's end, each share divided by its degree then, as the target. tail: [edge] EDGE_* columns;
     returns: every flight's Σ_t γ^t r_t over the episode. Rows updated in order, as np.add.at does."""
     for k in range(tail.shape[0]):
-        i, j = np.int64(tail[k, 3]), np.int64(tail[k, 4])
-        collected = (returns[i] - tail[k, 7]) / tail[k, 5] + (returns[j] - tail[k, 8]) / tail[k, 6]
-        tables[np.int64(tail[k, 0]), np.int64(tail[k, 1])] += np.float32(lr * (collected / tail[k, 9] - tail[k, 2]))
+        t = tail[k]
+        i, j = np.int64(t[EDGE_I]), np.int64(t[EDGE_J])
+        collected = (returns[i] - t[EDGE_RETURN_I]) / t[EDGE_DEGREE_I] + (returns[j] - t[EDGE_RETURN_J]) / t[EDGE_DEGREE_J]
+        tables[np.int64(t[EDGE_ROW]), np.int64(t[EDGE_ACTION])] += np.float32(lr * (collected / t[EDGE_DISCOUNT] - t[EDGE_Q]))
 
 
 @jit
@@ -366,7 +373,7 @@ def coordinated_episode(rng, tables, state_map, level_states, golden, table_bits
     signature, (edges, degree) = hot_key[:0], peer_graph(hot_key[:0], hot_flight[:0], n_flights)  # none yet (typed as the loop's)
     departed = np.zeros(n_flights if depart else 0, dtype=np.bool_)
     returns, discount = np.zeros(departed.size), 1.0  # Σ_t γ^t r_t of every flight so far, γ^t
-    tail, n_tail = np.empty((16 if depart and learn else 0, 10)), 0  # `depart_edges`'s
+    tail, n_tail = np.empty((16 if depart and learn else 0, EDGE_COLUMNS)), 0  # `depart_edges`'s
     for _ in range(n_steps):
         if agents.size == 0:
             break
@@ -388,12 +395,13 @@ def coordinated_episode(rng, tables, state_map, level_states, golden, table_bits
             pending = coordinated_update(tables, state_map, level_states, edges, degree, n_flights, rows, q, action, reward, next_state,
                                          lr, gamma, golden, table_bits, departed, gone, h)
             if n_tail + pending.size > tail.shape[0]:
-                tail = np.concatenate((tail[:n_tail], np.empty((max(tail.shape[0], pending.size), 10))))
+                tail = np.concatenate((tail[:n_tail], np.empty((max(tail.shape[0], pending.size), EDGE_COLUMNS))))
             for e in pending:
                 i, j = edges[0, e], edges[1, e]
                 a = 2 * action[i] + action[j]
-                tail[n_tail, 0], tail[n_tail, 1], tail[n_tail, 2], tail[n_tail, 3], tail[n_tail, 4] = rows[e], a, q[e, a], i, j
-                tail[n_tail, 5], tail[n_tail, 6], tail[n_tail, 7], tail[n_tail, 8], tail[n_tail, 9] = degree[i], degree[j], returns[i], returns[j], discount
+                t = tail[n_tail]
+                t[EDGE_ROW], t[EDGE_ACTION], t[EDGE_Q], t[EDGE_I], t[EDGE_J] = rows[e], a, q[e, a], i, j
+                t[EDGE_DEGREE_I], t[EDGE_DEGREE_J], t[EDGE_RETURN_I], t[EDGE_RETURN_J], t[EDGE_DISCOUNT] = degree[i], degree[j], returns[i], returns[j], discount
                 n_tail += 1
             if depart:
                 returns += discount * reward

@@ -52,10 +52,12 @@ def airspace_tables(points: pl.DataFrame, flights: pl.DataFrame, sectoriser) -> 
     """-> (sectors with base capacity, flights with cost and entry count, sector entries)."""
     sectors = sectoriser.sectors()
     entries = sector_entries(points, sectoriser)
-    if entries.is_empty():  # nothing to balance; most often a GeoJSON written [lat, lon] or levels in feet
+    if entries.is_empty():  # nothing to balance; most often SO6 in degrees, a GeoJSON written [lat, lon] or levels in feet
         where = getattr(sectoriser, "path", "the grid sectorisation")
-        raise SectorFileError(f"{where}: none of the {flights.height} flights enters any of its {sectors.height} sectors "
-                              "(GeoJSON positions are [lon, lat]; fl_lower/fl_upper are flight levels)")
+        raise SectorFileError(f"{where}: none of the {flights.height} flights enters any of its {sectors.height} sectors: "
+                              f"the flights lie at {_extent(points, ('lat', 'lat'), ('lon', 'lon'), ('fl', 'fl'))}; "
+                              f"the sectors at {_extent(sectors, ('lat_min_deg', 'lat_max_deg'), ('lon_min_deg', 'lon_max_deg'), ('fl_lower', 'fl_upper'))} "
+                              "(SO6 positions are decimal minutes of arc; GeoJSON positions are [lon, lat], fl_lower/fl_upper flight levels)")
     base = base_capacities(entries, sectors)
     sectors = sectors.with_columns(base_capacity_per_h=pl.col("sector").replace_strict(base, return_dtype=pl.Int64))
     n = entries.group_by("flight_id").agg(n_entries=pl.len().cast(pl.Int64))
@@ -65,6 +67,13 @@ def airspace_tables(points: pl.DataFrame, flights: pl.DataFrame, sectoriser) -> 
         n_entries=pl.col("n_entries").fill_null(0),
     )
     return sectors, flights, entries.sort("flight_id", "entry_ts")
+
+
+def _extent(t: pl.DataFrame, lat: tuple[str, str], lon: tuple[str, str], fl: tuple[str, str]) -> str:
+    """'lat a..b, lon c..d, FL e..f' over a table's (lower, upper) columns: where flights or sectors are, for an error line."""
+    lo = t.select(pl.col(c[0]).min() for c in (lat, lon, fl)).row(0)
+    hi = t.select(pl.col(c[1]).max() for c in (lat, lon, fl)).row(0)
+    return ", ".join(f"{name} {round(a, 2):g}..{round(b, 2):g}" for name, a, b in zip(("lat", "lon", "FL"), lo, hi))
 
 
 def case_name(scale: float) -> str:

@@ -124,6 +124,23 @@ def test_sector_file_no_flight_enters_is_one_clear_error(tmp_path):
     so6 = tmp_path / "day.so6"
     so6.write_text("\n".join(GOOD) + "\n")
     points, flights, _, _ = load_demand(so6)
-    with pytest.raises(SectorFileError, match=r"none of the 2 flights enters any of its 2 sectors \(GeoJSON positions are \[lon, lat\]") as e:
+    with pytest.raises(SectorFileError, match=r"none of the 2 flights enters any of its 2 sectors: the flights lie at lat 46\.\.47, .*GeoJSON positions are \[lon, lat\]") as e:
         airspace_tables(points, flights, GeoJSONSectorisation(str(sectors_path)))
+    assert "\n" not in str(e.value)
+
+
+def test_so6_in_degrees_is_told_by_where_the_flights_lie(tmp_path):
+    # the docs' most likely slip: SO6 positions in degrees instead of decimal minutes of arc (46.4 N = 2784.0),
+    # which puts the flights near (0.8 N, 0.1 E); the line must say where they are, not blame a sector file
+    def in_degrees(line):
+        f = line.split()
+        f[12:16] = [str(float(v) / 60) for v in f[12:16]]
+        return " ".join(f)
+    so6 = tmp_path / "day.so6"
+    so6.write_text("\n".join(in_degrees(ln) for ln in GOOD) + "\n")
+    points, flights, _, _ = load_demand(so6)
+    with pytest.raises(SectorFileError, match=r"the grid sectorisation: none of the 2 flights enters any of its 24 sectors: "
+                       r"the flights lie at lat 0\.77\.\.0\.78, lon 0\.1\.\.0\.15, FL 300\.\.360; the sectors at lat 45\.8\.\.47\.8, "
+                       r"lon 5\.9\.\.10\.5, FL 285\.\.480 \(SO6 positions are decimal minutes of arc") as e:
+        airspace_tables(points, flights, sectorisation(None, 1.0, 1.15, [285.0, 355.0, 375.0, 480.0], None))
     assert "\n" not in str(e.value)

@@ -140,6 +140,18 @@ def test_cli_reads_while_a_writer_replaces_files(isolated_home):
     assert counts and set(counts) == {1000}
 
 
+def test_cli_output_piped_into_head_ends_quietly(isolated_home):
+    """`python -m warehouse sql ... | head -1`: the reader closing the pipe early gives no traceback."""
+    storage.write_table("ingest_summary", _summary(100_000))  # output far beyond a pipe's buffer
+    cli = subprocess.Popen([sys.executable, "-m", "warehouse", "sql", "SELECT * FROM ingest_summary", "--format", "csv"],
+                           cwd=REPO, env={**__import__("os").environ, "TRAFFICLEARN_HOME": str(isolated_home)},
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    assert cli.stdout.readline() == b"source,outcome,reason,rows\n"
+    cli.stdout.close()  # as head does after its lines
+    err = cli.stderr.read().decode()
+    assert cli.wait() == 1 and err == ""
+
+
 def test_data_dictionary_in_readme():
     readme = (REPO / "README.md").read_text()
     assert data_dictionary_markdown() in readme, "README data dictionary is stale: python -m warehouse schema --markdown"

@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 
 import dagster as dg
+from dagster._core.events import RunFailureReason
 from dagster._core.log_manager import get_log_record_metadata, has_log_record_metadata
 from tqdm import tqdm
 
@@ -59,8 +60,10 @@ class ProgressHandler(logging.Handler):
                 self._print(f"[{self.desc} {self.done}/{self.total}] {step} {outcome} in {took:.1f} s")
         elif kind is None and record.levelno == logging.INFO:
             self.bar.set_postfix_str(message.splitlines()[0][:80] if message else "")
-        # a step skipped after a failure upstream is one "skipped" in the count, not an error line per step
-        if record.levelno >= logging.WARNING and not message.endswith("Not executing."):
+        # a step skipped after a failure upstream is one "skipped" in the count, not an error line per step; the run's
+        # "Steps failed: [...]" only repeats the failed step's line (the caller prints the run's outcome)
+        repeats = kind == "PIPELINE_FAILURE" and event.job_failure_data.failure_reason == RunFailureReason.STEP_FAILURE
+        if record.levelno >= logging.WARNING and not message.endswith("Not executing.") and not repeats:
             self._print(f"{record.levelname} {step}: {message}")
         elif kind == "ASSET_CHECK_EVALUATION" and not event.asset_check_evaluation_data.passed:
             # Dagster logs a failed check at DEBUG and its step still succeeds: say so, or the terminal shows only "done"

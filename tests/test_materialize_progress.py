@@ -59,6 +59,8 @@ def test_failure_names_the_step_and_shows_the_error(tmp_path, monkeypatch, capsy
     err = capsys.readouterr().err
     assert not ok and line.startswith("toy: FAILED at broken after ")
     assert "broken FAILED in" in err and "this asset always fails" in err
+    # the error once: not again in Dagster's "Execution of run ... failed. Steps failed: [...]" (the caller's line says it)
+    assert [ln for ln in err.splitlines() if ln.startswith("ERROR")] == [next(ln for ln in err.splitlines() if "this asset always fails" in ln)]
 
 
 def test_a_failed_check_is_printed_though_its_step_succeeds(tmp_path, monkeypatch, capsys):

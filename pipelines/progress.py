@@ -39,8 +39,11 @@ class ProgressHandler(logging.Handler):
         step = meta.get("step_key") or ""
         message = meta.get("orig_message") or record.getMessage()
         error = event.step_failure_data.error if kind == "STEP_FAILURE" else None
+        check = event.asset_check_evaluation_data if kind == "ASSET_CHECK_EVALUATION" else None
+        # what a failed check measured: Dagster's message only says that it did not pass
+        facts = ", ".join(f"{k}={v.value}" for k, v in check.metadata.items()) if check and not check.passed else ""
         with self.log_file.open("a", encoding="utf-8") as log:  # a few hundred records a run: reopening is cheap
-            log.write(f"{time.strftime('%H:%M:%S')} {record.levelname:7} {step or '-'} {kind or ''} {message}\n")
+            log.write(f"{time.strftime('%H:%M:%S')} {record.levelname:7} {step or '-'} {kind or ''} {message}{' ' + facts if facts else ''}\n")
             if error is not None:
                 log.write(error.to_string())
         if error is not None:  # the user's exception, not Dagster's wrapper around it
@@ -65,12 +68,12 @@ class ProgressHandler(logging.Handler):
         repeats = kind == "PIPELINE_FAILURE" and event.job_failure_data.failure_reason == RunFailureReason.STEP_FAILURE
         if record.levelno >= logging.WARNING and not message.endswith("Not executing.") and not repeats:
             self._print(f"{record.levelname} {step}: {message}")
-        elif kind == "ASSET_CHECK_EVALUATION" and not event.asset_check_evaluation_data.passed:
+        elif check is not None and not check.passed:
             # Dagster logs a failed check at DEBUG and its step still succeeds: say so, or the terminal shows only "done"
-            check = event.asset_check_evaluation_data
-            facts = ", ".join(f"{k}={v.value}" for k, v in check.metadata.items())  # what the check measured
-            self._print(f"{check.severity.value} {step}: check {check.check_name} on {check.asset_key.to_user_string()} did not pass"
-                        + (f": {facts[:300]}" if facts else ""))
+            shown = f": {facts[:300]}" if facts else ""
+            if len(facts) > 300:
+                shown += f"… (whole in {self.log_file})"
+            self._print(f"{check.severity.value} {step}: check {check.check_name} on {check.asset_key.to_user_string()} did not pass{shown}")
         if kind in ("PIPELINE_SUCCESS", "PIPELINE_FAILURE"):  # the run ended (these are the run events' values)
             self.bar.close()
 

@@ -34,6 +34,11 @@ def upstream_is_odd() -> dg.AssetCheckResult:
 
 
 @dg.asset_check(asset=upstream)
+def upstream_is_small() -> dg.AssetCheckResult:
+    return dg.AssetCheckResult(passed=False, severity=dg.AssetCheckSeverity.WARN, metadata={"where": "x" * 400 + "END"})
+
+
+@dg.asset_check(asset=upstream)
 def upstream_is_positive() -> dg.AssetCheckResult:
     return dg.AssetCheckResult(passed=True)
 
@@ -70,6 +75,17 @@ def test_a_failed_check_is_printed_though_its_step_succeeds(tmp_path, monkeypatc
     assert ok
     assert "WARN upstream_upstream_is_odd: check upstream_is_odd on upstream did not pass: smallest=2" in err
     assert "upstream_is_positive on upstream did not pass" not in err
+    (log,) = (tmp_path / "logs").glob("*_toy.log")
+    assert "ASSET_CHECK_EVALUATION Asset check 'upstream_is_odd' on 'upstream' did not pass. smallest=2" in log.read_text()  # what it measured too
+
+
+def test_a_long_check_record_is_cut_visibly_and_kept_whole_in_the_log(tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("TRAFFICLEARN_HOME", str(tmp_path))
+    materialize.run(_job(upstream, checks=[upstream_is_small]), "toy", dg.DagsterInstance.ephemeral())
+    (line,) = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("WARN")]
+    (log,) = (tmp_path / "logs").glob("*_toy.log")
+    assert "END" not in line and line.endswith(f"xxx… (whole in {log})")
+    assert "x" * 400 + "END" in log.read_text()
 
 
 def test_every_asset_group_has_a_job():

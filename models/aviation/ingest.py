@@ -118,7 +118,7 @@ def read_source(path: str | Path) -> pl.DataFrame:
         elif kind in (".json", ".jsonl", ".ndjson"):
             df = _read_json(p, lines=kind != ".json")
         else:
-            raise IngestError(f"{p}: unsupported file type '{kind or p.name}', expected .parquet, .csv or .json")
+            raise IngestError(f"{p}: unsupported file type '{kind or p.name}', expected .parquet, .csv, .tsv, .json, .jsonl or .ndjson (the text ones may be gzipped: .csv.gz)")
     except IngestError:
         raise
     except Exception as e:  # polars/arrow raise many types for a corrupt file; the user needs one line

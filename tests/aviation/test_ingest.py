@@ -96,7 +96,7 @@ def test_json_gz_epoch_ms(tmp_path, small_raw):
         (lambda p, raw: p / "nope.parquet", "no such file"),
         (lambda p, raw: (p / "empty.csv").write_text("time,icao24,lat,lon,baroaltitude\n") and p / "empty.csv", "no rows"),
         (lambda p, raw: (p / "x.parquet").write_bytes(b"this is not parquet") and p / "x.parquet", "not a readable parquet"),
-        (lambda p, raw: (p / "notes.txt").write_text("hello") and p / "notes.txt", "unsupported file type"),
+        (lambda p, raw: (p / "notes.txt").write_text("hello") and p / "notes.txt", "unsupported file type '.txt', expected .parquet, .csv, .tsv, .json, .jsonl or .ndjson (the text ones may be gzipped: .csv.gz)"),
         (lambda p, raw: _write(raw.drop("lat"), p / "nolat.parquet"), "missing columns ['lat']"),
         (lambda p, raw: _write(raw.with_columns(pl.col("baroaltitude") / M_PER_FT), p / "feet.parquet"), "looks like feet"),
         (lambda p, raw: _write(raw.with_columns(pl.col("velocity") * 3.6 * 10), p / "speed.parquet"), "wrong unit"),

@@ -15,6 +15,7 @@ import time
 
 import dagster as dg
 
+from assets.profiles import default_profile
 from pipelines.definitions import SYSTEMS, defs
 from pipelines.instance import InstanceError, dagster_home
 from warehouse.storage import home
@@ -58,6 +59,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("groups", nargs="+", metavar="GROUP", help=f"asset groups in order: {', '.join(groups)}")
     parser.add_argument("--config-json", default="{}", metavar="JSON", help='steps\' config, e.g. \'{"ops": {"flight_ingest": {"config": {"source_path": "my.csv"}}}}\'')
     args = parser.parse_args(argv)
+    try:
+        default_profile()  # the configs' profile default; a misspelt TRAFFICLEARN_PROFILE would fail the first run's steps
+    except ValueError as e:
+        parser.error(str(e))
     unknown = [g for g in args.groups if g not in groups]
     if unknown:
         parser.error(f"unknown group {', '.join(unknown)}; the groups are {', '.join(groups)}")

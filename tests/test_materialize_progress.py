@@ -177,3 +177,16 @@ def test_a_file_where_the_instance_goes_is_one_line(tmp_path, monkeypatch, capsy
         materialize.main(["aviation"])
     last = capsys.readouterr().err.strip().splitlines()[-1]
     assert exc.value.code == 2 and last.startswith("python -m pipelines.materialize: error: the Dagster instance") and "not a usable folder" in last
+
+
+def test_a_misspelt_profile_is_one_line_before_any_run(tmp_path):
+    # `make demo PROFILE=papr`: the configs' profile default was read while importing the assets, a traceback
+    import subprocess
+    import sys
+
+    env = {**os.environ, "TRAFFICLEARN_HOME": str(tmp_path), "TRAFFICLEARN_PROFILE": "papr"}
+    run = subprocess.run([sys.executable, "-m", "pipelines.materialize", "aviation"], env=env, capture_output=True, text=True,
+                         cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    assert run.returncode == 2 and "Traceback" not in run.stderr
+    assert run.stderr.strip().splitlines()[-1] == "python -m pipelines.materialize: error: TRAFFICLEARN_PROFILE='papr': expected one of demo, paper"
+    assert not (tmp_path / "warehouse").exists()  # nothing ran

@@ -16,7 +16,7 @@ PROFILE = {"demo": {"capacity_scales": [0.95]}, "paper": {"capacity_scales": [0.
 
 
 class CasesConfig(dg.Config):
-    profile: str = Field(default=default_profile(), description="demo: case cap95 only; paper: cap95, cap90, cap85, cap80")
+    profile: str = Field(default_factory=default_profile, description="demo: case cap95 only; paper: cap95, cap90, cap85, cap80")
     capacity_scales: list[float] | None = Field(default=None, description="capacity scale per case (None: the profile's)")
     max_delay_min: int = Field(default=60, description="MaxDelay: the largest ground delay a learner may give [min]")
 

@@ -17,7 +17,7 @@ PROFILE = {"demo": {"episodes": 200, "seeds": [0, 1, 2]}, "paper": {"episodes": 
 
 
 class TrainingConfig(dg.Config):
-    profile: str = Field(default=default_profile(), description="demo: 200 episodes per level, seeds 0-2; paper: 15,000 episodes, seeds 0-9")
+    profile: str = Field(default_factory=default_profile, description="demo: 200 episodes per level, seeds 0-2; paper: 15,000 episodes, seeds 0-9")
     episodes: int | None = Field(default=None, description="training episodes per abstraction level (None: the profile's)")
     seeds: list[int] | None = Field(default=None, description="training seeds (None: the profile's)")
     methods: list[str] = Field(default=list(METHODS), description="learners to train: " + ", ".join(METHODS))

@@ -12,7 +12,7 @@ from warehouse.storage import home
 
 
 class RoutesConfig(dg.Config):
-    profile: str = Field(default=default_profile(), description="demo: Sc1 + the bundled real network; paper: also Sc2 and Sc4")
+    profile: str = Field(default_factory=default_profile, description="demo: Sc1 + the bundled real network; paper: also Sc2 and Sc4")
     user_network: str | None = Field(
         default=None,
         description="optional extra network 'user': any OpenStreetMap extract (.osm/.osm.gz, through netconvert) or SUMO .net.xml[.gz]",
@@ -30,7 +30,7 @@ def urban_routes(context: dg.AssetExecutionContext, config: RoutesConfig) -> dg.
 
 
 class ScenariosConfig(dg.Config):
-    profile: str = Field(default=default_profile(), description="demo: Sc1 and real CR trained, MR/LR and 3x copies evaluated; paper: Tables 4.2-4.9")
+    profile: str = Field(default_factory=default_profile, description="demo: Sc1 and real CR trained, MR/LR and 3x copies evaluated; paper: Tables 4.2-4.9")
     artificial_cars_only: bool = Field(default=False, description="passenger cars only on Sc1/Sc2/Sc4 and their copies (as Table 4.2's "
                                        "one route agent per route suggests the thesis had); default: the 75/15/10 mix everywhere")
 

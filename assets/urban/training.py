@@ -18,7 +18,7 @@ PROFILE = {"demo": {"episodes": 50, "seeds": [0], "method_scenarios": {"ch3_dqn_
 
 
 class TrainingConfig(dg.Config):
-    profile: str = Field(default=default_profile(), description="demo: 50 episodes, seed 0; paper: 15,000 episodes, seeds 0-9")
+    profile: str = Field(default_factory=default_profile, description="demo: 50 episodes, seed 0; paper: 15,000 episodes, seeds 0-9")
     episodes: int | None = Field(default=None, description="training episodes per scenario, method and seed (None: the profile's)")
     seeds: list[int] | None = Field(default=None, description="training seeds, one policy set each (None: the profile's)")
     methods: list[str] = Field(default=["col_marl", "i_marl", "ch3_dqn_cnn"],

@@ -67,6 +67,13 @@ def read_first_states(path: str | Path) -> pl.DataFrame:
 
 def predict_flights(model: TrajectoryModel, first: pl.DataFrame) -> pl.DataFrame:
     """Whole-flight prediction for every flight of `first` (one row per flight: its first state)."""
+    lon0, lat0, lon1, lat1 = model.bbox
+    m = model.env.cfg.bbox_margin_deg  # beyond it the environment ends the roll-out at its first step
+    away = first.filter(~pl.col("lon").is_between(lon0 - m, lon1 + m) | ~pl.col("lat").is_between(lat0 - m, lat1 + m))
+    if not away.is_empty():
+        f = away.row(0, named=True)
+        raise PredictionInputError(f"flight {f['flight_id']}: first state lat {f['lat']:.2f}, lon {f['lon']:.2f} lies outside the area the model "
+                                   f"flies in (lat {lat0:.1f}..{lat1:.1f}, lon {lon0:.1f}..{lon1:.1f}): lat and lon swapped?")
     start = first.select("lon", "lat", "alt_m").to_numpy()
     start_s = first["ts"].dt.epoch("us").to_numpy() / 1e6
     out = model.predict(start, first["route"].to_list(), start_s)

@@ -203,6 +203,11 @@ def test_prediction_cli_and_bad_inputs(setup, trained, tmp_path, capsys):
         read_first_states(tmp_path / "feet.parquet")
     assert main(["--model", str(tmp_path / "nope.pt"), "--flights", str(flights), "--out", str(tmp_path / "x.parquet")]) == 2
     assert "not found" in capsys.readouterr().err
+    # lat and lon swapped: valid degrees, but far outside the area the model flies in (the roll-out ended at once)
+    first.with_columns(lat=pl.col("lon"), lon=pl.col("lat")).write_parquet(tmp_path / "swapped.parquet")
+    assert main(["--model", str(path), "--flights", str(tmp_path / "swapped.parquet"), "--out", str(tmp_path / "x.parquet")]) == 2
+    err = capsys.readouterr().err
+    assert "lies outside the area the model flies in" in err and "lat and lon swapped?" in err and len(err.strip().splitlines()) == 1
 
 
 @pytest.mark.parametrize("change, message", [

@@ -226,7 +226,12 @@ def normalise(df: pl.DataFrame, source: str) -> pl.DataFrame:
         elif canon == "pos_time":  # epoch seconds as they come, else timestamps: both to epoch µs
             e = (e * 1e6).round() if df[col].dtype == pl.Float64 else pl.lit(_timestamps(df[col], source).dt.epoch("us").cast(pl.Float64))
         else:
-            if not df[col].dtype.is_numeric():
+            numeric = df[col].dtype.is_numeric()
+            if df[col].dtype in (pl.String, pl.Null):  # a CSV column with no value in its first 10,000 rows is read as text
+                numbers = df[col].cast(pl.Float64, strict=False)
+                if numeric := numbers.null_count() == df[col].null_count():  # every value there is a number
+                    e = pl.lit(numbers)
+            if not numeric:
                 raise IngestError(f"{source}: column '{col}' is {df[col].dtype}, expected numbers")
             e = e.cast(pl.Float64).fill_nan(None)
             e = e * schema.scale[canon] if schema.scale.get(canon, 1.0) != 1.0 else e

@@ -17,6 +17,7 @@ flight with no entry that can reach such a row is fixed at delay 0.
 import time
 
 import highspy
+from highspy.highs import _Highs
 import numpy as np
 from scipy import sparse
 
@@ -45,7 +46,9 @@ def solve_optimum(problem: DCBProblem, time_limit_s: float = 300.0) -> tuple[np.
     cap_rows = sparse.csr_matrix((np.ones(col.size), (row_of_key, col)), shape=(rows.size, flights.size * delays.size))
     assign = sparse.kron(sparse.eye(flights.size), np.ones((1, delays.size)), format="csr")
     a = sparse.vstack([assign, cap_rows]).tocsc()
-    h = highspy.Highs()
+    # the solver without highspy's Python wrapper, whose constructor makes HiGHS print its banner to C stdout before
+    # output_flag can be set (in the middle of a run's progress lines); we use none of the wrapper's callbacks
+    h = _Highs()
     h.setOptionValue("output_flag", False)
     h.setOptionValue("time_limit", float(time_limit_s))
     h.setOptionValue("random_seed", 0)

@@ -1,6 +1,8 @@
 """Hotspot counting on a hand-built case, and the integer program against brute force."""
 
 import itertools
+import subprocess
+import sys
 from datetime import datetime, timedelta, timezone
 
 import numpy as np
@@ -149,3 +151,12 @@ def test_difference_reward_is_each_flights_own_change_of_the_day_total():
     zero = np.zeros(p.n_flights, dtype=np.int64)
     one = (np.array(p.flight_ids) == "f3").astype(np.int64)
     assert p.difference_reward(one, p.evaluate(zero), p.evaluate(one)).tolist() == [0.0, 0.0, 385.0, 0.0, 0.0]
+
+
+def test_the_solver_prints_nothing():
+    """HiGHS writes its banner to the process's C stdout (once per process, so a fresh one), where no Python redirect
+    catches it: it landed between the DCB run's progress lines."""
+    solve = "from tests.dcb.test_problem import make_problem; from models.dcb.optimum import solve_optimum; " \
+            "print(solve_optimum(make_problem([('f1', 'A', 55, 5), ('f2', 'A', 56, 5)], {'A': 1}, 6))[0].tolist())"
+    out = subprocess.run([sys.executable, "-c", solve], capture_output=True, text=True, check=True).stdout
+    assert out == "[0, 4]\n"  # f2 (entering at 00:56) moved into the next hour: the result and nothing else

@@ -149,9 +149,9 @@ def _as_array(key: str, items: list) -> np.ndarray:
 def run_episode(job: EpisodeJob) -> EpisodeResult:
     """Roll out one episode with ε-greedy route agents; returns every vehicle's transitions."""
     rng = np.random.default_rng(job.seed)
+    bitgen = kernels.bit_generator(rng)  # the exploration draws rng.random / rng.integers, made in one kernel call
     spec = kit(job.variant)
     env = spec.env(job.files, job.variant, sumo_seed=job.seed, record=job.record, leader_guard=job.leader_guard, shield=job.shield)
-    n_actions = env.action_space(None).n
     index = {a: i for i, a in enumerate(job.agents)}
     agent_of = {v: index[route_agent(v)] for v in env.possible_agents}  # vehicle -> its route agent's index
     buf = {k: [] for k in ("agent_idx", "state", "action", "reward", "next_state", "done")}  # see _as_array
@@ -165,13 +165,11 @@ def run_episode(job: EpisodeJob) -> EpisodeResult:
             states = np.array([obs[v] for v in ids])
             agent_idx = np.fromiter(map(agent_of.__getitem__, ids), np.int64, len(ids))
             q = spec.q_values(job.params, states, agent_idx)
-            explore = rng.random(len(ids)) < job.epsilon
+            allowed = None
             if job.shield:  # the best allowed action; exploring: a uniform draw among the allowed ones
                 allowed = np.stack([infos[v]["action_mask"] for v in ids])
-                action = np.where(explore, (rng.random(allowed.shape) * allowed).argmax(axis=1), np.where(allowed, q, -np.inf).argmax(axis=1))
                 buf["allowed"].append(allowed)
-            else:
-                action = np.where(explore, rng.integers(0, n_actions, len(ids)), q.argmax(axis=1))
+            action = kernels.epsilon_greedy(q, job.epsilon, bitgen, allowed)
             obs, rewards, terminated, truncated, infos = env.step(dict(zip(ids, action.tolist())))
             buf["agent_idx"].append(agent_idx)
             buf["state"].append(states)

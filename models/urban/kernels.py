@@ -15,7 +15,12 @@ nothing else from the project and take the env's constants as arguments (`params
 No kernel is recursive: numba's cache of a recursive function crashed the process when loaded (measured).
 """
 
+import ctypes
+
 import numpy as np
+from llvmlite import ir
+from numba import types
+from numba.core.extending import intrinsic
 
 from models.jit import jit
 
@@ -189,3 +194,64 @@ def snapshot_columns(rows, lane_len, min_gap_m):
         gap = rows[7, i] + min_gap_m
         leader_dist[i] = (0.0 if 0.0 > gap else gap) if rows[6, i] > 0 else -1.0  # Python's max(gap, 0.0), as it was
     return code, route_index, length, fuel_mlps, leader_dist
+
+
+def bit_generator(rng: np.random.Generator) -> tuple:
+    """(state, next_double, next_uint32) of rng's bit generator as addresses, for `epsilon_greedy`: it draws with numpy's
+    own C functions on the generator's own state, so the generator goes on exactly as if numpy had drawn (the rollout's
+    `rng.integers` alone was ~6 µs of Python around a few nanoseconds of drawing). Valid while rng lives."""
+    c = rng.bit_generator.ctypes
+    return c.state_address, ctypes.cast(c.next_double, ctypes.c_void_p).value, ctypes.cast(c.next_uint32, ctypes.c_void_p).value
+
+
+def _draw(ret):
+    """An intrinsic calling a bit generator's C draw function (address) on its state (address), returning `ret`."""
+
+    @intrinsic
+    def call(typingctx, fn, state):
+        def codegen(context, builder, sig, args):
+            ptr = ir.IntType(8).as_pointer()
+            fn_type = ir.FunctionType(context.get_value_type(ret), [ptr])
+            return builder.call(builder.inttoptr(args[0], fn_type.as_pointer()), [builder.inttoptr(args[1], ptr)])
+
+        return ret(fn, state), codegen
+
+    return call
+
+
+_next_double, _next_uint32 = _draw(types.float64), _draw(types.uint32)
+
+
+@jit
+def epsilon_greedy(q, epsilon, bitgen, allowed):
+    """Each row's action under ε-greedy exploration, drawn from the generator of `bitgen` (`bit_generator`) exactly as
+    numpy's `rng.random(n) < epsilon` (explore?) then, without a mask, `rng.integers(0, n_actions, n)` (the exploring
+    rows' actions) and else argmax q; with a mask `allowed` [n, n_actions] (the safety layer), `rng.random((n,
+    n_actions))` and the exploring rows take the argmax of those draws over the allowed actions, the others their best
+    allowed q. Same draws, same order, same ties (the first) as the numpy expressions: the same episodes to the bit."""
+    state, next_double, next_uint32 = bitgen
+    n, n_actions = q.shape
+    explore = np.empty(n, np.bool_)
+    for i in range(n):
+        explore[i] = _next_double(next_double, state) < epsilon
+    action = np.empty(n, np.int64)
+    if allowed is None:
+        # numpy's integers(0, n_actions): Lemire's method on 32-bit draws (random_bounded_uint64_fill); no draw for one action
+        span = np.uint64(n_actions)
+        threshold = (np.uint64(0xFFFFFFFF) - np.uint64(n_actions - 1)) % span
+        for i in range(n):
+            draw = np.uint64(0)
+            if n_actions > 1:
+                m = np.uint64(_next_uint32(next_uint32, state)) * span
+                while (m & np.uint64(0xFFFFFFFF)) < threshold:
+                    m = np.uint64(_next_uint32(next_uint32, state)) * span
+                draw = m >> np.uint64(32)
+            action[i] = draw if explore[i] else np.argmax(q[i])
+        return action
+    u = np.empty((n, n_actions))
+    for i in range(n):
+        for j in range(n_actions):
+            u[i, j] = _next_double(next_double, state)
+    for i in range(n):
+        action[i] = np.argmax(u[i] * allowed[i]) if explore[i] else np.argmax(np.where(allowed[i], q[i], -np.inf))
+    return action

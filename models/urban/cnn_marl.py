@@ -31,6 +31,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from models.urban import kernels
 from models.urban.env import INTER_TIME_S, UrbanParallelEnv
 from models.urban.network import read_net
 
@@ -153,7 +154,8 @@ class Ch3Env(UrbanParallelEnv):
         for v, a in zip(ids, action):
             self.sim.ls.vehicle.setSpeed(v, SPEEDS_MPS[a])
 
-    def _state_reward(self, snap, junction, road_code, internal, route, dist, centre_dist):
+    def _state_reward(self, snap, route):
+        _, junction, internal, dist, _, last_road = kernels.lane_facts(*self._lane_args(snap, route))
         geo = self.geo
         xy = np.column_stack([snap.x, snap.y])
         entry = np.where(internal[:, None], xy, np.array([geo.lane_end.get(ln, (0.0, 0.0)) for ln in snap.lane]).reshape(-1, 2))
@@ -162,7 +164,7 @@ class Ch3Env(UrbanParallelEnv):
         m = collision_matrix(junction, entry, exit_, xy, direction, dist, snap.speed, geo.centre, geo.half_m)
         conflict = (m == CONFLICT).any(axis=(1, 2))
         state = np.column_stack([self.individual_state(snap, dist), m.reshape(len(m), -1)]).astype(np.float32)
-        return state, reward(snap.speed, snap.leader_dist, conflict)
+        return state, reward(snap.speed, snap.leader_dist, conflict), last_road
 
     def _exit_point(self, vehicle: str, route_index: int, entry: np.ndarray) -> np.ndarray:
         """Start of the road after the junction ahead (the route index stays on the last normal edge inside a junction)."""

@@ -401,7 +401,7 @@ class UrbanParallelEnv(ParallelEnv):
 
     def _observe(self):
         """State and reward of every vehicle on the road; hands vehicles past their last junction to the fixed rule."""
-        sim, idx = self.sim, self.sim.index
+        sim = self.sim
         snap = sim.snapshot(self.positions)
         self._last = snap
         if self.record:
@@ -410,12 +410,7 @@ class UrbanParallelEnv(ParallelEnv):
         if n == 0:
             return {}, {}, set()
         ids = snap.ids
-        route = np.fromiter(map(self.vehicle_route.__getitem__, ids), int, n)
-        # the network's facts of each vehicle's lane: road, junction ahead (or inside), internal edge?
-        road_code, junction, internal, dist, centre_dist, last_road = kernels.lane_facts(
-            snap.lane_code, snap.lane_pos, snap.route_index, route, self.route_edges, idx.lane_road, idx.lane_junction, idx.lane_internal,
-            idx.lane_len, idx.lane_centre_m)
-        state, r = self._state_reward(snap, junction, road_code, internal, route, dist, centre_dist)
+        state, r, last_road = self._state_reward(snap, np.fromiter(map(self.vehicle_route.__getitem__, ids), int, n))
         goal, finished = set(), self.finished
         for i in last_road.nonzero()[0].tolist():
             v = ids[i]
@@ -442,13 +437,23 @@ class UrbanParallelEnv(ParallelEnv):
         """[vel / vel_max, pos / 200 m, fveh_dist / 200 m, fveh_vel / vel_max] (-1: no front vehicle), [n, 4]."""
         return kernels.individual_state(snap.speed, dist, snap.leader_dist, snap.leader_speed, self.vmax, KERNEL_PARAMS)
 
-    def _state_reward(self, snap, junction: np.ndarray, road_code: np.ndarray, internal: np.ndarray, route: np.ndarray, dist: np.ndarray,
-                      centre_dist: np.ndarray):
-        """State (Eq 4.2; i-MARL: its first 4 terms) and non-terminal reward of every vehicle (route: route rows)."""
-        if self.shield:
-            self._masks = self._shield(snap, junction, road_code, internal, route, centre_dist, dist)
-        return kernels.state_reward(self.variant == "col", snap.speed, dist, snap.leader_dist, snap.leader_speed, junction, road_code,
-                                    centre_dist, self.sim.index.incoming_lanes, self.vmax, _rule_code(None), KERNEL_PARAMS)
+    def _lane_args(self, snap, route: np.ndarray) -> tuple:
+        """kernels.lane_facts's arguments: each vehicle's lane, position and route (route rows) and the network's tables."""
+        idx = self.sim.index
+        return (snap.lane_code, snap.lane_pos, snap.route_index, route, self.route_edges, idx.lane_road, idx.lane_junction, idx.lane_internal,
+                idx.lane_len, idx.lane_centre_m)
+
+    def _state_reward(self, snap, route: np.ndarray):
+        """State (Eq 4.2; i-MARL: its first 4 terms), non-terminal reward and on-its-last-road flag of every vehicle (route:
+        route rows), from the network's facts of each vehicle's lane (road, junction ahead or inside, internal edge?)."""
+        terms = (self.variant == "col", snap.speed, snap.leader_dist, snap.leader_speed, self.sim.index.incoming_lanes, self.vmax, _rule_code(None),
+                 KERNEL_PARAMS)
+        if not self.shield:  # one kernel call: every returned array costs (numba boxes it), the lane facts stay inside
+            return kernels.observe(*self._lane_args(snap, route), *terms)
+        road_code, junction, internal, dist, centre_dist, last_road = kernels.lane_facts(*self._lane_args(snap, route))
+        self._masks = self._shield(snap, junction, road_code, internal, route, centre_dist, dist)
+        col, speed, leader_dist, leader_speed, *rest = terms
+        return (*kernels.state_reward(col, speed, dist, leader_dist, leader_speed, junction, road_code, centre_dist, *rest), last_road)
 
     def _shield(self, snap, junction: np.ndarray, road_code: np.ndarray, internal: np.ndarray, route: np.ndarray, centre_dist: np.ndarray,
                 dist: np.ndarray) -> np.ndarray:

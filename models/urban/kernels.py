@@ -152,6 +152,17 @@ def state_reward(col, speed, dist, leader_dist, leader_speed, junction, road, ce
 
 
 @jit
+def observe(lane_code, lane_pos, route_index, route, route_edges, lane_road, lane_junction, lane_internal, lane_len, lane_centre_m,
+            col, speed, leader_dist, leader_speed, incoming_lanes, vmax, rule, params):
+    """lane_facts then state_reward in one call: state, reward and on its last road? of every vehicle. In the env's loop a
+    kernel call costs ~0.5 µs per array it returns (numba unpickles the array type for each) on top of its dispatch."""
+    road, junction, _, dist, centre_dist, last_road = lane_facts(lane_code, lane_pos, route_index, route, route_edges, lane_road,
+                                                                 lane_junction, lane_internal, lane_len, lane_centre_m)
+    state, reward = state_reward(col, speed, dist, leader_dist, leader_speed, junction, road, centre_dist, incoming_lanes, vmax, rule, params)
+    return state, reward, last_road
+
+
+@jit
 def dense(x, w, b, agent):
     """x [n, i] -> x w[agent] + b[agent], [n, o]: one dense layer of each row's own route agent (weights stacked as
     [agent, i, o]); float32, summed over i in order as np.einsum does (the same Q values to the bit)."""
@@ -180,11 +191,55 @@ def accelerations(action, is_car, speed, car_mps2, heavy_mps2, vmax, action_s):
     return out
 
 
+PW_BLOCK = 128  # numpy's PW_BLOCKSIZE: its pairwise summation splits longer arrays in two
+
+
+@jit
+def _pairwise_block(a, lo, n):
+    """numpy's sum of a[lo:lo + n] for n <= PW_BLOCK (loops_utils.h.src): 8 interleaved accumulators from 8 values on."""
+    if n < 8:
+        res = -0.0  # numpy's start: a sum of only -0 stays -0
+        for i in range(lo, lo + n):
+            res += a[i]
+        return res
+    r = a[lo:lo + 8].copy()
+    i = 8
+    while i < n - n % 8:
+        for j in range(8):
+            r[j] += a[lo + i + j]
+        i += 8
+    res = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
+    for k in range(lo + i, lo + n):
+        res += a[k]
+    return res
+
+
+@jit
+def numpy_sum(a):
+    """a.sum() of a 1-D float64 array, to the bit: numpy adds to 0 the pairwise sum, whose halves (a multiple of 8 values
+    on the left) split until at most PW_BLOCK values; the tree is walked with a stack (no recursive kernels)."""
+    if a.size <= PW_BLOCK:
+        return 0.0 + _pairwise_block(a, 0, a.size)
+    todo, sums = [(0, a.size, False)], [0.0]  # (start, length, both halves summed?), finished sums (after the first 0)
+    while todo:
+        lo, n, halves_done = todo.pop()
+        if halves_done:
+            right = sums.pop()
+            sums.append(sums.pop() + right)
+        elif n <= PW_BLOCK:
+            sums.append(_pairwise_block(a, lo, n))
+        else:
+            half = n // 2 - n // 2 % 8
+            todo += [(lo, n, True), (lo + half, n - half, False), (lo, half, False)]  # the left half first
+    return sums[0] + sums[1]
+
+
 @jit
 def snapshot_columns(rows, lane_len, min_gap_m):
     """The columns of a snapshot that follow from the getters' rows (models.urban.sim.Simulation.snapshot): lane code and
     route index as integers, lane length, fuel volume rate (ml/s) and the leader's bumper-to-bumper gap (-1: no leader;
-    getLeader's distance excludes the follower's minGap, added back: a leader closer than minGap is not "no leader")."""
+    getLeader's distance excludes the follower's minGap, added back: a leader closer than minGap is not "no leader"); and
+    the sums of the speeds and fuel rates for the episode's metrics (numpy's `sum`, to the bit)."""
     n = rows.shape[1]
     code, route_index = np.empty(n, np.int64), np.empty(n, np.int64)
     length, fuel_mlps, leader_dist = np.empty(n), np.empty(n), np.empty(n)
@@ -193,7 +248,7 @@ def snapshot_columns(rows, lane_len, min_gap_m):
         length[i], fuel_mlps[i] = lane_len[code[i]], rows[3, i] / rows[4, i]
         gap = rows[7, i] + min_gap_m
         leader_dist[i] = (0.0 if 0.0 > gap else gap) if rows[6, i] > 0 else -1.0  # Python's max(gap, 0.0), as it was
-    return code, route_index, length, fuel_mlps, leader_dist
+    return code, route_index, length, fuel_mlps, leader_dist, numpy_sum(rows[0]), numpy_sum(fuel_mlps)
 
 
 def bit_generator(rng: np.random.Generator) -> tuple:

@@ -258,14 +258,14 @@ class Simulation:
             speed, map(raw.vehicle_getLanePosition, ids), map(raw.vehicle_getRouteIndex, ids), map(raw.vehicle_getFuelConsumption, ids),
             map(_fuel_density, ids), map(index.lane_codes.__getitem__, lane), map(bool, leader), leader_d,
             map(dict(zip(ids, speed)).get, leader, itertools.repeat(-1.0))), float, 9 * n).reshape(9, n)
-        code, route_index, lane_len, fuel_mlps, leader_dist = kernels.snapshot_columns(rows, index.lane_len, MIN_GAP_M)
+        code, route_index, lane_len, fuel_mlps, leader_dist, speed_sum, fuel_sum = kernels.snapshot_columns(rows, index.lane_len, MIN_GAP_M)
         if positions:
             x, y = np.array(list(map(raw.vehicle_getPosition, ids)), float).reshape(-1, 2).T
             accel = np.fromiter(map(raw.vehicle_getAcceleration, ids), float, n)
         else:
-            x = y = accel = np.full(n, np.nan)  # one array for the three (nobody writes into a snapshot)
-        self.tally.speed_sum += float(rows[0].sum())
-        self.tally.fuel_ml_sum += float(fuel_mlps.sum())
+            x = y = accel = _nans(n)
+        self.tally.speed_sum += speed_sum
+        self.tally.fuel_ml_sum += fuel_sum
         self.tally.samples += n
         return Snapshot(t=raw.simulation_getTime(), ids=ids, speed=rows[0], lane_pos=rows[1], lane_len=lane_len, lane=lane, lane_code=code,
                         route_index=route_index, x=x, y=y, accel=accel, fuel_mgps=rows[3], leader_dist=leader_dist, leader_speed=rows[8])
@@ -317,6 +317,14 @@ def _raw():
     from libsumo import _libsumo
 
     return _libsumo
+
+
+@functools.lru_cache(maxsize=1024)
+def _nans(n: int) -> np.ndarray:
+    """n NaNs, read-only: one array per length for every snapshot without positions (np.full was µs per decision)."""
+    out = np.full(n, np.nan)
+    out.flags.writeable = False
+    return out
 
 
 @functools.lru_cache(maxsize=65536)

@@ -368,7 +368,7 @@ class UrbanParallelEnv(ParallelEnv):
         self.finished |= failed
         sim.new_collisions, sim.new_teleports = set(), set()
         done = sim.done  # two libsumo calls: once per step, not per vehicle
-        truncated = {v: done and not t for v, t in terminated.items()}
+        truncated = {v: not t for v, t in terminated.items()} if done else dict.fromkeys(terminated, False)
         self.agents = [] if done else [v for v, t in terminated.items() if not t]
         if not self.agents:  # nobody to drive right now, but vehicles may still come or be on their last road
             new = self._wait_for_agents()
@@ -419,8 +419,9 @@ class UrbanParallelEnv(ParallelEnv):
                 goal.add(v)
                 sim.ls.vehicle.setSpeedMode(v, SPEED_MODE_SUMO)  # SUMO's safety checks back on
                 sim.ls.vehicle.setSpeed(v, self.vmax)  # max acceleration up to vel_max (§4.3.1)
-        keep = [i for i, v in enumerate(ids) if v not in finished or v in goal]
-        if len(keep) < n:
+        keep = slice(None)
+        if len(finished.intersection(ids)) > len(goal):  # some still drive their last road (rare): they are no agents
+            keep = [i for i, v in enumerate(ids) if v not in finished or v in goal]
             ids, state, r = [ids[i] for i in keep], state[keep], r[keep]
         if self.shield:
             self.action_masks = dict(zip(ids, self._masks[keep]))

@@ -10,6 +10,7 @@ episodes need processes (see models.parallel). Facts measured on libsumo 1.28 th
 - teleports (SUMO's way out of gridlock) are counted as failures.
 """
 
+import collections
 import functools
 import itertools
 from dataclasses import dataclass, field
@@ -193,49 +194,55 @@ class Simulation:
 
     def advance(self, seconds: float) -> list:
         """Simulate `seconds` in sub-steps; returns the vehicles that departed meanwhile."""
-        tally, raw = self.tally, _raw()
-        departed = []
+        raw, departed = _raw(), []
         for _ in range(int(round(seconds / self.step_s))):
             raw.simulation_step(0.0)
-            new, arrived = raw.simulation_getDepartedIDList(), raw.simulation_getArrivedIDList()
-            t = raw.simulation_getTime() if new or arrived else None
-            for v in new:
-                if self.speed_mode is not None:
-                    raw.vehicle_setSpeedMode(v, self.speed_mode)
-                    # keep the entry speed until its first decision: uncommanded, speed mode 32 would let SUMO's
-                    # car-following model accelerate without its safe-speed check
-                    raw.vehicle_setAcceleration(v, 0.0, ACTION_S)
-                tally.depart[v] = t - self.step_s
-                departed.append(v)
-            for col in raw.simulation_getCollisions():
-                pair = frozenset((col.collider, col.victim))
-                if pair not in tally.collision_pairs:
-                    tally.collision_pairs.add(pair)
-                    tally.collision_types[col.type] = tally.collision_types.get(col.type, 0) + 1
-                    self.new_collisions |= pair
-                tally.collided |= pair
-            teleports = raw.simulation_getStartingTeleportIDList()
-            for v in teleports:
-                tally.teleported.add(v)
-                self.new_teleports.add(v)
-            for v in arrived:
-                if v not in tally.collided:
-                    tally.arrive[v] = t
-            # vehicle.getIDCount, counted from the events instead (it builds SUMO's whole id list: µs per sub-step; a
-            # vehicle being teleported is off the list, one removed after a collision is among the arrived). A teleport
-            # that ends at the route's end is listed as an arrival, not as an ending teleport: that vehicle left the
-            # list when its teleport started, not again when it arrives
-            ended = raw.simulation_getEndingTeleportIDList()
-            in_transfer = self.in_transfer
-            in_transfer.update(teleports)
-            in_transfer.difference_update(ended)
-            left = len(arrived)
-            if arrived and in_transfer:
-                left -= len(in_transfer.intersection(arrived))
-                in_transfer.difference_update(arrived)
-            self.on_road += len(new) - left - len(teleports) + len(ended)
-            tally.vehicle_substeps += self.on_road
+            new, arrived, teleports = raw.simulation_getDepartedIDList(), raw.simulation_getArrivedIDList(), raw.simulation_getStartingTeleportIDList()
+            collisions = raw.simulation_getCollisions()
+            if new or arrived or teleports or collisions or self.in_transfer:  # most sub-steps: none of these
+                self._events(new, arrived, teleports, collisions, departed)
+            self.tally.vehicle_substeps += self.on_road
         return departed
+
+    def _events(self, new: tuple, arrived: tuple, teleports: tuple, collisions: tuple, departed: list) -> None:
+        """A sub-step's departures, arrivals, collisions and teleports into the tally and the count of vehicles on the road."""
+        tally, raw = self.tally, _raw()
+        t = raw.simulation_getTime() if new or arrived else None
+        for v in new:
+            if self.speed_mode is not None:
+                raw.vehicle_setSpeedMode(v, self.speed_mode)
+                # keep the entry speed until its first decision: uncommanded, speed mode 32 would let SUMO's
+                # car-following model accelerate without its safe-speed check
+                raw.vehicle_setAcceleration(v, 0.0, ACTION_S)
+            tally.depart[v] = t - self.step_s
+            departed.append(v)
+        for col in collisions:
+            pair = frozenset((col.collider, col.victim))
+            if pair not in tally.collision_pairs:
+                tally.collision_pairs.add(pair)
+                tally.collision_types[col.type] = tally.collision_types.get(col.type, 0) + 1
+                self.new_collisions |= pair
+            tally.collided |= pair
+        for v in teleports:
+            tally.teleported.add(v)
+            self.new_teleports.add(v)
+        for v in arrived:
+            if v not in tally.collided:
+                tally.arrive[v] = t
+        # vehicle.getIDCount, counted from the events instead (it builds SUMO's whole id list: µs per sub-step; a
+        # vehicle being teleported is off the list, one removed after a collision is among the arrived). A teleport
+        # that ends at the route's end is listed as an arrival, not as an ending teleport: that vehicle left the
+        # list when its teleport started, not again when it arrives. A teleport ends only after it started: no
+        # vehicle in transfer, no ending teleport
+        ended = raw.simulation_getEndingTeleportIDList()
+        in_transfer = self.in_transfer
+        in_transfer.update(teleports)
+        in_transfer.difference_update(ended)
+        left = len(arrived)
+        if arrived and in_transfer:
+            left -= len(in_transfer.intersection(arrived))
+            in_transfer.difference_update(arrived)
+        self.on_road += len(new) - left - len(teleports) + len(ended)
 
     def snapshot(self, positions: bool = True) -> Snapshot:
         """All vehicles now, read once per decision with libsumo getters (subscriptions are recomputed by SUMO at
@@ -271,10 +278,9 @@ class Simulation:
                         route_index=route_index, x=x, y=y, accel=accel, fuel_mgps=rows[3], leader_dist=leader_dist, leader_speed=rows[8])
 
     def set_accelerations(self, ids: list, accel_mps2: list, seconds: float) -> None:
-        """Each vehicle's acceleration, held for `seconds` (libsumo's C setter: its Python wrapper adds a frame per vehicle)."""
-        set_acceleration = _raw().vehicle_setAcceleration
-        for v, a in zip(ids, accel_mps2):
-            set_acceleration(v, a, seconds)
+        """Each vehicle's acceleration, held for `seconds` (libsumo's C setter: its Python wrapper adds a frame per vehicle;
+        mapped and drained in C: no bytecode per vehicle)."""
+        collections.deque(map(_raw().vehicle_setAcceleration, ids, accel_mps2, itertools.repeat(seconds)), maxlen=0)
 
     def waiting_s(self, ids: list) -> np.ndarray:
         """SUMO's waiting time of these vehicles (s spent below 0.1 m/s since they last moved), with its C getter."""

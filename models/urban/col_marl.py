@@ -170,7 +170,7 @@ def run_episode(job: EpisodeJob) -> EpisodeResult:
                 allowed = np.stack([infos[v]["action_mask"] for v in ids])
                 buf["allowed"].append(allowed)
             action = kernels.epsilon_greedy(q, job.epsilon, bitgen, allowed)
-            obs, rewards, terminated, truncated, infos = env.step(dict(zip(ids, action.tolist())))
+            obs, rewards, terminated, truncated, infos = env.step(action)  # in the order of env.agents (= ids)
             buf["agent_idx"].append(agent_idx)
             buf["state"].append(states)
             buf["action"].append(action)

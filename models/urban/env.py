@@ -345,14 +345,17 @@ class UrbanParallelEnv(ParallelEnv):
         self.agents = list(obs)
         return obs, self._infos(obs)
 
-    def step(self, actions: dict):
+    def step(self, actions: dict | np.ndarray):
+        """actions: vehicle -> action (PettingZoo), or every agent's action as an integer array in the order of `agents` (the
+        trainer's rollout: no dict to build and read back)."""
         sim = self.sim
-        ids = [a for a in self.agents if a in actions]
-        if ids:
-            snap = self._last
-            row = dict(zip(snap.ids, range(len(snap.ids))))
+        if isinstance(actions, np.ndarray):
+            ids, action = self.agents, actions
+        else:
+            ids = [a for a in self.agents if a in actions]
             action = np.fromiter(map(actions.__getitem__, ids), int, len(ids))
-            self._apply(ids, action, snap.speed[np.fromiter(map(row.__getitem__, ids), int, len(ids))])
+        if ids:
+            self._apply(ids, action, np.fromiter(map(sim.speed_of.__getitem__, ids), float, len(ids)))
         previous = self.agents
         sim.advance(ACTION_S)
         obs, rewards, goal = self._observe()
@@ -403,7 +406,6 @@ class UrbanParallelEnv(ParallelEnv):
         """State and reward of every vehicle on the road; hands vehicles past their last junction to the fixed rule."""
         sim = self.sim
         snap = sim.snapshot(self.positions)
-        self._last = snap
         if self.record:
             self.frames.append(snap)
         n = len(snap.ids)

@@ -191,6 +191,7 @@ class Simulation:
         self.new_teleports: set = set()
         self.on_road = 0  # vehicles SUMO lists (vehicle.getIDList)
         self.in_transfer: set = set()  # vehicles being teleported now (off SUMO's list)
+        self.speed_of: dict = {}  # vehicle -> its speed at the last snapshot (m/s)
 
     def advance(self, seconds: float) -> list:
         """Simulate `seconds` in sub-steps; returns the vehicles that departed meanwhile."""
@@ -257,6 +258,7 @@ class Simulation:
         if speed and min(speed) < 0:  # vehicles being teleported are off the network (speed = SUMO's invalid value): left out
             ids, speed = [v for v, s in zip(ids, speed) if s >= 0], [s for s in speed if s >= 0]
         n = len(ids)
+        self.speed_of = dict(zip(ids, speed))  # also for the env's next decision: its agents' speeds
         lane = list(map(raw.vehicle_getLaneID, ids))
         leader, leader_d = zip(*map(raw.vehicle_getLeader, ids, itertools.repeat(LEADER_LOOKAHEAD_M))) if n else ((), ())  # id or "", distance
         # rows: speed, position on the lane, route index, fuel rate, fuel density, lane code, leader?, leader distance, leader speed
@@ -264,7 +266,7 @@ class Simulation:
         rows = np.fromiter(itertools.chain(
             speed, map(raw.vehicle_getLanePosition, ids), map(raw.vehicle_getRouteIndex, ids), map(raw.vehicle_getFuelConsumption, ids),
             map(_fuel_density, ids), map(index.lane_codes.__getitem__, lane), map(bool, leader), leader_d,
-            map(dict(zip(ids, speed)).get, leader, itertools.repeat(-1.0))), float, 9 * n).reshape(9, n)
+            map(self.speed_of.get, leader, itertools.repeat(-1.0))), float, 9 * n).reshape(9, n)
         code, route_index, lane_len, fuel_mlps, leader_dist, speed_sum, fuel_sum = kernels.snapshot_columns(rows, index.lane_len, MIN_GAP_M)
         if positions:
             x, y = np.array(list(map(raw.vehicle_getPosition, ids)), float).reshape(-1, 2).T

@@ -210,6 +210,25 @@ def test_episodes_are_the_ones_recorded_before_the_faster_state_read(tmp_path, s
     assert _scripted_episode(files, 7, leader_guard=False) == ("338300890ce309e7", 53, -210.262798, 5, 10)
 
 
+def test_actions_as_an_array_in_the_agents_order_are_the_dict(tmp_path, sc1_net):
+    # the trainer's rollout hands step its actions as an array (no dict per decision): the same episode as the dicts
+    # (one env at a time: libsumo runs one simulation per process)
+    files, _ = make_copy(tmp_path / "c", sc1_net, 20, 40.0)
+
+    def episode(as_array: bool) -> list:
+        env, rng, out = UrbanParallelEnv(files, "col"), np.random.default_rng(4), []
+        env.reset(seed=4)
+        while env.agents:
+            action = rng.integers(0, 5, len(env.agents))
+            obs, *rest = env.step(action if as_array else dict(zip(env.agents, action.tolist())))
+            out.append(({v: o.tolist() for v, o in obs.items()}, *rest, list(env.agents)))
+        env.close()
+        return out
+
+    by_dict = episode(False)
+    assert len(by_dict) > 20 and episode(True) == by_dict
+
+
 def test_pettingzoo_parallel_api(tmp_path, sc1_net):
     from pettingzoo.test import parallel_api_test
 

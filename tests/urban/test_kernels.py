@@ -12,7 +12,7 @@ from models.urban.env import _CAR_MPS2, _HEAVY_MPS2
 def test_q_values_are_the_einsum_forward_to_the_bit():
     params = numpy_params(RouteAgentsQ(24, 6, torch.Generator().manual_seed(0)))
     rng = np.random.default_rng(0)
-    for n in (1, 3, 16, 150):
+    for n in (1, 3, 5, 16, 150):  # fewer than four rows, four at a time and the rest (the Q layer's 5 outputs)
         states, agent = rng.normal(size=(n, 6)).astype(np.float32), rng.integers(0, 24, n)
         h = np.tanh(np.einsum("nd,ndh->nh", states, params["w1"][agent]) + params["b1"][agent])
         expected = np.einsum("nh,nha->na", h, params["w2"][agent]) + params["b2"][agent]
@@ -37,6 +37,48 @@ def test_snapshot_columns_keep_an_overlapping_leader_as_a_leader():
     rows = np.zeros((9, 4))
     rows[3], rows[4], rows[5] = 700.0, 350.0, [0, 1, 1, 0]  # fuel mg/s, density mg/ml, lane code
     rows[6], rows[7] = [1, 1, 1, 0], [-4.0, -1.0, 7.5, -1.0]  # leader?, getLeader's distance
-    code, _, length, fuel_mlps, leader_dist = kernels.snapshot_columns(rows, np.array([50.0, 80.0]), 2.5)
+    code, _, length, fuel_mlps, leader_dist, _, fuel_sum = kernels.snapshot_columns(rows, np.array([50.0, 80.0]), 2.5)
     assert leader_dist.tolist() == [0.0, 1.5, 10.0, -1.0] and length.tolist() == [50.0, 80.0, 80.0, 50.0]
-    assert fuel_mlps.tolist() == [2.0] * 4 and code.dtype == np.int64
+    assert fuel_mlps.tolist() == [2.0] * 4 and code.dtype == np.int64 and fuel_sum == 8.0
+
+
+def test_numpy_sum_is_numpys_pairwise_sum_to_the_bit():
+    # the episode's speed and fuel sums: numpy's order of additions (8 accumulators, halves above 128 values), not a
+    # running sum, whatever the length (vehicles on the road) and with the sign of a zero sum
+    rng = np.random.default_rng(2)
+    lengths = [*range(0, 140), 255, 256, 257, 300, 1000, 4099]
+    for n in lengths:
+        a = rng.normal(size=n) * 10.0 ** rng.integers(-3, 9, n)  # wide magnitudes: another order rounds differently
+        for x in (a, np.abs(a), -np.zeros(n)):
+            expected = x.sum()
+            assert kernels.numpy_sum(x) == expected and np.signbit(kernels.numpy_sum(x)) == np.signbit(expected), n
+    a = rng.normal(size=300) * 10.0 ** rng.integers(-3, 9, 300)
+    assert kernels.numpy_sum(a) != sum(a.tolist())  # a running sum is not numpy's: the test can tell
+
+
+def _numpy_epsilon_greedy(rng, q, epsilon, allowed):
+    """The rollout's ε-greedy choice as numpy expressions (what the kernel replaced)."""
+    explore = rng.random(len(q)) < epsilon
+    if allowed is None:
+        return np.where(explore, rng.integers(0, q.shape[1], len(q)), q.argmax(axis=1))
+    return np.where(explore, (rng.random(allowed.shape) * allowed).argmax(axis=1), np.where(allowed, q, -np.inf).argmax(axis=1))
+
+
+def test_epsilon_greedy_draws_what_numpy_draws_and_leaves_the_generator_as_numpy_does():
+    gen = np.random.default_rng(3)
+    for seed in range(20):
+        numpy_rng, kernel_rng = np.random.default_rng(seed), np.random.default_rng(seed)
+        bitgen = kernels.bit_generator(kernel_rng)
+        for k in range(60):
+            n, n_actions = int(gen.integers(1, 30)), int(gen.choice([4, 5]))
+            q = gen.normal(size=(n, n_actions)).astype(np.float32)
+            q[:, 1] = q[:, 0] if k % 4 == 0 else q[:, 1]  # ties: the first
+            q[gen.random(q.shape) < (0.2 if k % 5 == 0 else 0.0)] = np.nan  # numpy's argmax takes the first NaN
+            allowed = gen.random((n, n_actions)) < 0.6 if k % 3 == 0 else None
+            epsilon = float(gen.choice([0.0, 0.1, 0.5, 1.0]))
+            expected = _numpy_epsilon_greedy(numpy_rng, q, epsilon, allowed)
+            got = kernels.epsilon_greedy(q, epsilon, bitgen, allowed)
+            assert got.dtype == expected.dtype and np.array_equal(got, expected), (seed, k)
+            if k % 10 == 0:  # numpy's own draws in between go on from where the kernel's left the generator
+                assert np.array_equal(numpy_rng.integers(0, 5, 7), kernel_rng.integers(0, 5, 7))
+        assert numpy_rng.bit_generator.state == kernel_rng.bit_generator.state

@@ -55,15 +55,9 @@ class NetIndex:
     decision (lane id -> code) instead of one per fact."""
 
     def __init__(self, net_path: str):
-        net = read_net(Path(net_path))
-        nodes = [n for n in net.getNodes()]
-        self.junction_ids = [n.getID() for n in nodes]
-        j_index = {j: i for i, j in enumerate(self.junction_ids)}
-        self.incoming_lanes = np.array([max(sum(e.getLaneNumber() for e in n.getIncoming()), 1) for n in nodes], float)
-        self.edge_junction = {e.getID(): j_index[e.getToNode().getID()] for e in net.getEdges()}
-        self.lane_length = {ln.getID(): ln.getLength() for e in net.getEdges() for ln in e.getLanes()}
-        self.j_index = j_index
-        self.centre_at = _centre_positions(net_path, net)
+        # read-only facts shared by every index of this file version (a new Simulation per episode)
+        self.junction_ids, self.j_index, incoming, self.edge_junction, self.lane_length, self.centre_at = _net_facts(net_path, _stamp(net_path))
+        self.incoming_lanes = incoming.copy()
         self._road_code: dict = {}  # road id -> road code
         self.lane_road_id: list = []  # lane code -> road id
         self._rows: list = []  # lane code -> (length, centre position, junction ahead, road code, internal?)
@@ -103,6 +97,30 @@ class _LaneCodes(dict):
     def __missing__(self, lane: str) -> int:
         self[lane] = code = self._add(lane)
         return code
+
+
+def _stamp(path: str) -> tuple | None:
+    """A file's version: modification time and size (None: no such file, read_net says so)."""
+    try:
+        st = Path(path).stat()
+    except OSError:
+        return None
+    return st.st_mtime_ns, st.st_size
+
+
+@functools.lru_cache(maxsize=8)
+def _net_facts(net_path: str, stamp: tuple | None) -> tuple:
+    """What NetIndex takes from the network file, parsed once per file version (`stamp`): sumolib's two reads cost
+    ~2 ms per episode on Sc1 and ~45 ms on the real network. Junction ids, junction id -> index, incoming lanes per
+    junction, edge -> the junction it drives to, lane -> length, lane -> position of its junction's centre."""
+    net = read_net(Path(net_path))
+    nodes = list(net.getNodes())
+    junction_ids = [n.getID() for n in nodes]
+    j_index = {j: i for i, j in enumerate(junction_ids)}
+    incoming = np.array([max(sum(e.getLaneNumber() for e in n.getIncoming()), 1) for n in nodes], float)
+    edge_junction = {e.getID(): j_index[e.getToNode().getID()] for e in net.getEdges()}
+    lane_length = {ln.getID(): ln.getLength() for e in net.getEdges() for ln in e.getLanes()}
+    return junction_ids, j_index, incoming, edge_junction, lane_length, _centre_positions(net_path, net)
 
 
 def _centre_positions(net_path: str, net) -> dict:

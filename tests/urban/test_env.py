@@ -127,6 +127,28 @@ def test_lane_table_holds_each_lanes_road_junction_and_length(sc1_net):
     assert c == n and len(index.lane_junction) == n + 1 and index.lane_junction[c] == -1 and index.lane_road_id[c] == "nowhere"
 
 
+def test_the_network_file_is_parsed_once_per_version(tmp_path, sc1_net, monkeypatch):
+    # a Simulation per episode builds a NetIndex: sumolib's parse (~45 ms on the real network) only for a new file version
+    import shutil
+
+    from models.urban import sim as sim_module
+
+    net = tmp_path / "n.net.xml"
+    shutil.copy(sc1_net, net)
+    reads = []
+    monkeypatch.setattr(sim_module, "read_net", lambda path, internal=False: reads.append(path) or read_net(path, internal))
+    first, second = NetIndex(str(net)), NetIndex(str(net))
+    assert len(reads) == 2  # the network and its internal lanes, once
+    assert first.lane_codes == second.lane_codes and np.array_equal(first.lane_len, second.lane_len)
+    second.lane_codes["nowhere_0"]  # an index's own lanes stay its own
+    assert "nowhere_0" not in first.lane_codes and "nowhere_0" not in NetIndex(str(net)).lane_codes
+    net.write_text(net.read_text().replace("<net ", "<net  ", 1))  # a new version (size): parsed again
+    NetIndex(str(net))
+    assert len(reads) == 4
+    with pytest.raises(UrbanInputError, match="network file not found"):
+        NetIndex(str(tmp_path / "missing.net.xml"))
+
+
 def test_speed_dependent_safe_dist():
     v = np.array([0.0, 10.0, 30.0])
     assert safe_dist(v).tolist() == [20.0, 20.0, 20.0]  # the thesis's constant is the default

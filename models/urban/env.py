@@ -350,6 +350,8 @@ class UrbanParallelEnv(ParallelEnv):
         trainer's rollout: no dict to build and read back)."""
         sim = self.sim
         if isinstance(actions, np.ndarray):
+            if actions.shape != (len(self.agents),):  # a wrong length would drive the wrong vehicles, silently
+                raise ValueError(f"actions: an array of shape {actions.shape}, expected ({len(self.agents)},): one per agent, in the order of env.agents")
             ids, action = self.agents, actions
         else:
             ids = [a for a in self.agents if a in actions]

@@ -249,6 +249,11 @@ def test_actions_as_an_array_in_the_agents_order_are_the_dict(tmp_path, sc1_net)
 
     by_dict = episode(False)
     assert len(by_dict) > 20 and episode(True) == by_dict
+    env = UrbanParallelEnv(files, "col")
+    env.reset(seed=4)
+    with pytest.raises(ValueError, match=rf"^actions: an array of shape \({len(env.agents) + 1},\), expected \({len(env.agents)},\)"):
+        env.step(np.zeros(len(env.agents) + 1, int))
+    env.close()
 
 
 def test_pettingzoo_parallel_api(tmp_path, sc1_net):

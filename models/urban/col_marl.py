@@ -130,6 +130,7 @@ class EpisodeResult:
     metrics: dict
     frames: list = field(default_factory=list)  # 1 s snapshots if recorded
     collided: set = field(default_factory=set)
+    teleported: set = field(default_factory=set)
     vehicle_substeps: int = 0  # vehicles x simulation steps, for throughput figures
 
 
@@ -181,7 +182,7 @@ def run_episode(job: EpisodeJob) -> EpisodeResult:
                 buf["next_allowed"].append(np.stack([infos[v]["action_mask"] for v in ids]))
         counts = np.bincount([agent_of[v] for v in env.sim.tally.depart], minlength=len(job.agents))
         metrics = env.sim.metrics(job.n_vehicles)
-        frames, collided, substeps = env.frames, set(env.sim.tally.collided), env.sim.tally.vehicle_substeps
+        frames, collided, teleported, substeps = env.frames, set(env.sim.tally.collided), set(env.sim.tally.teleported), env.sim.tally.vehicle_substeps
     finally:
         env.close()
     transitions = {k: _as_array(k, v) for k, v in buf.items()}
@@ -189,7 +190,7 @@ def run_episode(job: EpisodeJob) -> EpisodeResult:
     returns = np.bincount(transitions["agent_idx"].astype(np.int64), transitions["reward"], len(job.agents))
     with np.errstate(invalid="ignore", divide="ignore"):
         agent_return = np.where(counts > 0, returns / counts, np.nan)
-    return EpisodeResult(transitions, agent_return, metrics, frames, collided, substeps)
+    return EpisodeResult(transitions, agent_return, metrics, frames, collided, teleported, substeps)
 
 
 # --- training ---------------------------------------------------------------------------------------

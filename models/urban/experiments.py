@@ -257,15 +257,15 @@ class SumoJob:
 
 
 def run_job(job):
-    """Worker entry point: an RL episode (EpisodeJob) or a SUMO baseline run (SumoJob) -> (metrics, frames, collided)."""
+    """Worker entry point: an RL episode (EpisodeJob) or a SUMO baseline run (SumoJob) -> (metrics, frames, vehicles that
+    collided, vehicles SUMO teleported)."""
     from models.urban.col_marl import run_episode
     from models.urban.sim import run_sumo_model
 
     if isinstance(job, SumoJob):
-        metrics, frames = run_sumo_model(job.files, job.n_vehicles, job.model, job.seed, job.record)
-        return metrics, frames, set()
+        return run_sumo_model(job.files, job.n_vehicles, job.model, job.seed, job.record)
     result = run_episode(job)
-    return result.metrics, result.frames, result.collided
+    return result.metrics, result.frames, result.collided, result.teleported
 
 
 def held_out(scenarios_df: pl.DataFrame, scenarios: list[str] | None = None, copies: int | None = None) -> pl.DataFrame:
@@ -330,20 +330,22 @@ def results_rows(keys: list, outputs: list) -> pl.DataFrame:
 
 def trajectories_rows(keys: list, outputs: list) -> pl.DataFrame:
     """1 s snapshots of the recorded episodes -> urban_trajectories rows (one DataFrame per snapshot, no per-point loop)."""
-    frames, collided = [], []
-    for (scenario, _, method, _, _), (_, snaps, hit) in zip(keys, outputs):
+    frames, failed = [], []
+    for (scenario, _, method, _, _), (_, snaps, hit, jumped) in zip(keys, outputs):
         frames += [
             pl.DataFrame({"scenario": scenario, "method": method, "vehicle_id": pl.Series(s.ids, dtype=pl.String), "t": s.t,
                           "x": s.x, "y": s.y, "speed_mps": s.speed, "accel_mps2": s.accel})
             for s in snaps if s.ids
         ]
-        collided += [{"scenario": scenario, "method": method, "vehicle_id": v, "collided": True} for v in sorted(hit)]
+        failed += [{"scenario": scenario, "method": method, "vehicle_id": v, "collided": v in hit, "teleported": v in jumped}
+                   for v in sorted(hit | jumped)]
     df = pl.concat(frames)
-    hits = pl.DataFrame(collided, schema={"scenario": pl.String, "method": pl.String, "vehicle_id": pl.String, "collided": pl.Boolean})
+    hits = pl.DataFrame(failed, schema={"scenario": pl.String, "method": pl.String, "vehicle_id": pl.String, "collided": pl.Boolean,
+                                        "teleported": pl.Boolean})
     parts = df["vehicle_id"].str.split_exact(".", 2).struct.rename_fields(["route", "cls", "n"]).struct.unnest()
     return (
         df.with_columns(route=parts["route"], agent=parts["route"] + ":" + parts["cls"])
         .join(hits, on=["scenario", "method", "vehicle_id"], how="left", maintain_order="left")
-        .with_columns(pl.col("collided").fill_null(False))
-        .select("scenario", "method", "vehicle_id", "t", "x", "y", "speed_mps", "accel_mps2", "route", "agent", "collided")
+        .with_columns(pl.col("collided", "teleported").fill_null(False))
+        .select("scenario", "method", "vehicle_id", "t", "x", "y", "speed_mps", "accel_mps2", "route", "agent", "collided", "teleported")
     )

@@ -359,8 +359,9 @@ def _fuel_density(vehicle_id: str) -> float:
     return VEHICLE_TYPES["car" if vehicle_id.split(".")[-2] == "car" else "bus"].fuel_density_mg_per_ml
 
 
-def run_sumo_model(files: ScenarioFiles, n_vehicles: int, model: str, seed: int, record: bool = False) -> tuple[dict, list]:
-    """A SUMO baseline (IDM or Krauss) on the same unsignalized network and demand; optional 1 s trajectories."""
+def run_sumo_model(files: ScenarioFiles, n_vehicles: int, model: str, seed: int, record: bool = False) -> tuple[dict, list, set, set]:
+    """A SUMO baseline (IDM or Krauss) on the same unsignalized network and demand; optional 1 s trajectories
+    -> (metrics, frames, vehicles that collided, vehicles SUMO teleported)."""
     sim = Simulation(files, model=model, seed=seed)
     sim.start()
     frames = []
@@ -370,6 +371,6 @@ def run_sumo_model(files: ScenarioFiles, n_vehicles: int, model: str, seed: int,
             snap = sim.snapshot()
             if record:
                 frames.append(snap)
-        return sim.metrics(n_vehicles), frames
+        return sim.metrics(n_vehicles), frames, set(sim.tally.collided), set(sim.tally.teleported)
     finally:
         sim.close()

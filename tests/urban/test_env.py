@@ -68,7 +68,7 @@ def test_a_teleport_to_the_route_end_is_counted_once(tmp_path, sc1_net):
 
 
 def test_sumo_idm_obeys_right_before_left_on_the_same_crossing(tmp_path, sc1_net):
-    metrics, _ = run_sumo_model(crossing_copy(tmp_path / "cross", sc1_net), 2, "IDM", 0)
+    metrics, *_ = run_sumo_model(crossing_copy(tmp_path / "cross", sc1_net), 2, "IDM", 0)
     assert metrics["collisions"] == 0 and metrics["arrived"] == 2 and metrics["success"]
 
 

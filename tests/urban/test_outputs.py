@@ -28,8 +28,8 @@ def test_trajectories_profile_and_recording(tmp_path, sc1_net):
                run_job(EpisodeJob(cross, "col", AGENTS, _hold_policy(), 0.0, 0, 2, record=True))]
     traj = trajectories_rows(keys, outputs)
     idm, crossing = traj.filter(pl.col("scenario") == "sc1"), traj.filter(pl.col("scenario") == "cross")
-    assert idm["vehicle_id"].n_unique() == 20 and not idm["collided"].any()
-    assert crossing["collided"].all() and set(crossing["agent"]) == {"r000:car", "r001:car"}
+    assert idm["vehicle_id"].n_unique() == 20 and not idm["collided"].any() and not idm["teleported"].any()
+    assert crossing["collided"].all() and not crossing["teleported"].any() and set(crossing["agent"]) == {"r000:car", "r001:car"}
 
     route = busiest_route(idm, "idm")
     prof = route_profiles(idm, route)
@@ -40,6 +40,19 @@ def test_trajectories_profile_and_recording(tmp_path, sc1_net):
     rrd = write_episode_recording(crossing, str(sc1_net), tmp_path / "ep.rrd", "test")
     entities = {str(c.entity_path) for c in rr.chunk.RrdReader(rrd).stream()}
     assert {"/vehicles", "/network/lanes"} <= entities and sum(e.startswith("/collisions/") for e in entities) == 2
+
+
+def test_teleported_and_collided_vehicles_are_flagged_for_learners_and_baselines(tmp_path, sc1_net):
+    # a car ordered to brake stands until SUMO teleports it (120 s): its rows say so (that second's position jump and
+    # acceleration are SUMO's, not driving); the baselines' colliders are flagged as the learners' are
+    lone = crossing_copy(tmp_path / "turn", sc1_net, turn=True)
+    brake = {"w1": np.zeros((1, 6, 128)), "b1": np.zeros((1, 128)), "w2": np.zeros((1, 128, 5)), "b2": np.eye(5)[[0]]}
+    outputs = [run_job(EpisodeJob(lone, "col", ["r001:car"], brake, 0.0, 0, 1, record=True))]
+    assert outputs[0][3] == {"r001.car.0"}
+    traj = trajectories_rows([("turn", 0, "col_marl", 0, 1)], outputs)
+    assert traj["teleported"].all() and not traj["collided"].any()
+    metrics, _, collided, teleported = run_job(SumoJob(crossing_copy(tmp_path / "x", sc1_net), "IDM", 0, 2))
+    assert collided == set() and teleported == set() and metrics["success"]
 
 
 def test_training_rows_without_return_or_loss_are_null_not_nan():

@@ -98,6 +98,8 @@ TABLES: list[Table] = [
             col("route", pa.string(), "", "route id"),
             _AGENT,
             col("collided", pa.bool_(), "", "the vehicle was removed in a collision during the episode"),
+            col("teleported", pa.bool_(), "", "SUMO teleported the vehicle (stuck 120 s) during the episode: its position jumps "
+                "and the acceleration SUMO reports for that second is meaningless (e.g. -200 m/s²)"),
         ),
     ),
     Table(

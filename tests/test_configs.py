@@ -61,3 +61,20 @@ def test_unusable_config_is_one_line(check, message):
     with pytest.raises(ValueError, match=message) as e:
         check()
     assert "\n" not in str(e.value)
+
+
+def test_every_profile_default_is_read_when_a_run_builds_its_config(monkeypatch):
+    # TRAFFICLEARN_PROFILE set after the assets were imported (as in a run's process, or a launchpad run of `make dev`)
+    # reaches every config: each reads it when built, none at import (a misspelt profile was a traceback then)
+    import dagster as dg
+
+    import pipelines.definitions  # noqa: F401  (imports every asset's config)
+
+    def subclasses(cls):
+        return {s for c in cls.__subclasses__() for s in {c} | subclasses(c)}
+
+    configs = sorted(f"{c.__module__}.{c.__name__}" for c in subclasses(dg.Config) if c.__module__.startswith("assets.") and "profile" in c.model_fields)
+    assert len(configs) == 7, configs  # DCB cases and training, urban routes, scenarios and training, trajectory, AppLearn
+    monkeypatch.setenv("TRAFFICLEARN_PROFILE", "paper")
+    built = {f"{c.__module__}.{c.__name__}": c().profile for c in subclasses(dg.Config) if f"{c.__module__}.{c.__name__}" in configs}
+    assert built == dict.fromkeys(configs, "paper")

@@ -201,12 +201,25 @@ def _tidy_names(names: pl.Series, lower: bool) -> tuple[pl.Series, pl.Series]:
     return (names if tidy.equals(distinct) else tidy.gather(at)), code.gather(at)
 
 
+def _text_as_typed(col: pl.Series) -> pl.Series:
+    """A text column whose every value is a number as numbers, or whose every value is true/false as booleans; else as
+    it is. Polars reads a CSV column with no value in its first 10,000 rows as text (an export without vertical rates,
+    altitudes or position times that start late)."""
+    numbers = col.cast(pl.Float64, strict=False)
+    if numbers.null_count() == col.null_count():
+        return numbers
+    flags = col.str.to_lowercase().replace_strict({"true": True, "false": False}, default=None, return_dtype=pl.Boolean)
+    return flags if flags.null_count() == col.null_count() else col
+
+
 def normalise(df: pl.DataFrame, source: str) -> pl.DataFrame:
     """Rename to canonical columns, convert to SI units, add row_index and the integer codes of the names
     (`_ac` aircraft, `_cs` callsign: they sort like icao24 / callsign). Raises IngestError on wrong units."""
     schema = detect_schema(df.columns, source)
     # timestamps are parsed and checked eagerly; the other columns are one select, which polars runs in parallel
     exprs = [pl.int_range(pl.len(), dtype=pl.Int64).alias("row_index")]
+    df = df.with_columns(_text_as_typed(df[col]) for canon, col in schema.columns.items()
+                         if canon not in ("ts", "icao24", "callsign") and col in df.columns and df[col].dtype in (pl.String, pl.Null))
     for canon, col in schema.columns.items():
         if col not in df.columns:
             dtype = {"callsign": pl.String, "onground": pl.Boolean}.get(canon, pl.Float64)
@@ -222,16 +235,13 @@ def normalise(df: pl.DataFrame, source: str) -> pl.DataFrame:
             e = pl.lit(names)
             exprs.append(pl.lit(codes).alias("_ac" if canon == "icao24" else "_cs"))
         elif canon == "onground":
+            if df[col].dtype == pl.String:  # polars cannot cast text to booleans: a traceback
+                raise IngestError(f"{source}: column '{col}' is text, expected true/false")
             e = e.cast(pl.Boolean, strict=False)
         elif canon == "pos_time":  # epoch seconds as they come, else timestamps: both to epoch µs
             e = (e * 1e6).round() if df[col].dtype == pl.Float64 else pl.lit(_timestamps(df[col], source).dt.epoch("us").cast(pl.Float64))
         else:
-            numeric = df[col].dtype.is_numeric()
-            if df[col].dtype in (pl.String, pl.Null):  # a CSV column with no value in its first 10,000 rows is read as text
-                numbers = df[col].cast(pl.Float64, strict=False)
-                if numeric := numbers.null_count() == df[col].null_count():  # every value there is a number
-                    e = pl.lit(numbers)
-            if not numeric:
+            if not df[col].dtype.is_numeric():
                 raise IngestError(f"{source}: column '{col}' is {df[col].dtype}, expected numbers")
             e = e.cast(pl.Float64).fill_nan(None)
             e = e * schema.scale[canon] if schema.scale.get(canon, 1.0) != 1.0 else e

@@ -274,7 +274,11 @@ def bit_generator(rng: np.random.Generator) -> tuple:
 
 
 def _draw(ret):
-    """An intrinsic calling a bit generator's C draw function (address) on its state (address), returning `ret`."""
+    """An intrinsic calling a bit generator's C draw function (address) on its state (address), returning `ret`: both
+    arrive as integers, cast in the generated code to `ret (*)(void *)` and `void *`, and called directly. Why not numba's
+    own support of a Generator argument (as models/dcb/kernels.py, once per episode): it draws the same, but unboxes
+    the generator through its Python ctypes attributes on every call, ~16 µs per decision against ~1.4 µs here
+    (16 rows, 5 actions, timeit, 2026-11-24 09:28 UTC, load 4.8)."""
 
     @intrinsic
     def call(typingctx, fn, state):

@@ -92,15 +92,20 @@ def test_json_gz_epoch_ms(tmp_path, small_raw):
 
 def test_a_csv_column_empty_in_its_first_rows_is_read_as_numbers(small_raw, tmp_path):
     # polars reads such a column as text (it infers types from the first 10,000 rows): an export without vertical
-    # rates, or one whose altitudes start late, was refused as "is String, expected numbers"
+    # rates, or one whose altitudes start late, was refused as "is String, expected numbers"; late position times as
+    # "not timestamps", a late on-ground flag was a polars traceback (text cast to booleans)
+    starts_late = pl.when(pl.col("i") >= 10_000).then
     late = small_raw.with_row_index("i").with_columns(
-        baroaltitude=pl.when(pl.col("i") >= 10_000).then(pl.col("baroaltitude")), vertrate=pl.lit(None, pl.Float64)).drop("i")
+        baroaltitude=starts_late(pl.col("baroaltitude")), lastposupdate=starts_late(pl.col("lastposupdate")),
+        onground=starts_late(pl.col("onground")), vertrate=pl.lit(None, pl.Float64)).drop("i")
     tracks, rejects, _ = ingest(_write(late, tmp_path / "late.csv"))
     typed, typed_rejects, _ = ingest(_write(late, tmp_path / "late.parquet"))  # the same values, typed
     assert tracks.height > 0 and tracks.equals(typed) and rejects.drop("source").equals(typed_rejects.drop("source"))
     assert dict(rejects.group_by("reason").len().iter_rows())["missing_value"] >= 10_000
     with pytest.raises(IngestError, match="column 'baroaltitude' is String, expected numbers"):  # text that is not numbers
         ingest(_write(small_raw.with_columns(pl.col("baroaltitude").cast(pl.String) + " m"), tmp_path / "units.csv"))
+    with pytest.raises(IngestError, match="column 'onground' is text, expected true/false"):
+        ingest(_write(small_raw.with_columns(onground=pl.lit("yes")), tmp_path / "flag.csv"))
 
 
 @pytest.mark.parametrize(

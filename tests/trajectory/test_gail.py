@@ -208,6 +208,13 @@ def test_prediction_cli_and_bad_inputs(setup, trained, tmp_path, capsys):
     assert main(["--model", str(path), "--flights", str(tmp_path / "swapped.parquet"), "--out", str(tmp_path / "x.parquet")]) == 2
     err = capsys.readouterr().err
     assert "lies outside the area the model flies in" in err and "lat and lon swapped?" in err and len(err.strip().splitlines()) == 1
+    # the area is the model's bounding box and the env's margin around it (where the env's roll-out goes on)
+    _, _, _, lat1 = model.bbox
+    margin = model.env.cfg.bbox_margin_deg
+    one = read_first_states(flights).head(1)
+    assert predict_flights(model, one.with_columns(lat=pl.lit(lat1 + margin / 2))).height > 0
+    with pytest.raises(PredictionInputError, match="outside the area the model flies in"):
+        predict_flights(model, one.with_columns(lat=pl.lit(lat1 + 1.5 * margin)))
 
 
 @pytest.mark.parametrize("change, message", [

@@ -67,6 +67,40 @@ def test_a_teleport_to_the_route_end_is_counted_once(tmp_path, sc1_net):
     assert len(sim.tally.teleported) == 1 and counts[-1] == (0, 0) and all(a == b for a, b in counts)
 
 
+def test_a_teleport_that_ends_in_a_quiet_sub_step_is_counted(monkeypatch):
+    # a teleport ends (the vehicle back on SUMO's list) only sub-steps after it started when the next road is full: that
+    # sub-step may have no departure, arrival, collision or new teleport, and the count must still take the vehicle back.
+    # SUMO's event lists scripted (the jam is hard to make on demand): a, b depart; a's teleport starts; nothing; it ends
+    from models.urban import sim as sim_module
+    from models.urban.sim import Tally
+
+    script = [{"departed": ("a", "b")}, {"starting": ("a",)}, {}, {"ending": ("a",)}, {}]
+    now = []
+
+    class Raw:
+        def simulation_step(self, t):
+            now.append(script[len(now)])
+
+        def simulation_getTime(self):
+            return len(now) * STEP_S
+
+        def __getattr__(self, name):  # the event getters: this sub-step's list
+            key = {"simulation_getDepartedIDList": "departed", "simulation_getArrivedIDList": "arrived",
+                   "simulation_getStartingTeleportIDList": "starting", "simulation_getEndingTeleportIDList": "ending",
+                   "simulation_getCollisions": "collisions"}[name]
+            return lambda: now[-1].get(key, ())
+
+    monkeypatch.setattr(sim_module, "_raw", Raw)
+    sim = object.__new__(Simulation)  # no SUMO: what advance reads
+    sim.step_s, sim.speed_mode, sim.tally, sim.on_road, sim.in_transfer = STEP_S, None, Tally(), 0, set()
+    sim.new_collisions, sim.new_teleports = set(), set()
+    counts = []
+    for _ in script:
+        sim.advance(STEP_S)
+        counts.append(sim.on_road)
+    assert counts == [2, 1, 1, 2, 2] and sim.tally.vehicle_substeps == 8 and not sim.in_transfer and sim.tally.teleported == {"a"}
+
+
 def test_sumo_idm_obeys_right_before_left_on_the_same_crossing(tmp_path, sc1_net):
     metrics, *_ = run_sumo_model(crossing_copy(tmp_path / "cross", sc1_net), 2, "IDM", 0)
     assert metrics["collisions"] == 0 and metrics["arrived"] == 2 and metrics["success"]
@@ -254,6 +288,22 @@ def test_actions_as_an_array_in_the_agents_order_are_the_dict(tmp_path, sc1_net)
     with pytest.raises(ValueError, match=rf"^actions: an array of shape \({len(env.agents) + 1},\), expected \({len(env.agents)},\)"):
         env.step(np.zeros(len(env.agents) + 1, int))
     env.close()
+
+
+def test_agents_still_driving_at_the_time_limit_are_truncated(tmp_path, sc1_net):
+    # an episode cut by its time limit (SUMO's last depart + slack) truncates the agents on the road, terminates none
+    files, _ = make_copy(tmp_path / "c", sc1_net, 20, 40.0)
+    env = UrbanParallelEnv(files, "col")
+    env.reset(seed=4)
+    env.sim.max_time_s = env.sim.ls.simulation.getTime() + 3.0  # the limit 3 decisions from now
+    steps = []
+    while env.agents:
+        _, _, terminated, truncated, _ = env.step(np.full(len(env.agents), 2))
+        steps.append((terminated, truncated))
+    env.close()
+    (terminated, truncated), earlier = steps[-1], steps[:-1]
+    assert len(steps) == 3 and not any(v for _, tr in earlier for v in tr.values())
+    assert truncated and any(truncated.values()) and all(truncated[v] == (not terminated[v]) for v in truncated)
 
 
 def test_pettingzoo_parallel_api(tmp_path, sc1_net):

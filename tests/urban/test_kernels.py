@@ -37,9 +37,10 @@ def test_snapshot_columns_keep_an_overlapping_leader_as_a_leader():
     rows = np.zeros((9, 4))
     rows[3], rows[4], rows[5] = 700.0, 350.0, [0, 1, 1, 0]  # fuel mg/s, density mg/ml, lane code
     rows[6], rows[7] = [1, 1, 1, 0], [-4.0, -1.0, 7.5, -1.0]  # leader?, getLeader's distance
-    code, _, length, fuel_mlps, leader_dist, _, fuel_sum = kernels.snapshot_columns(rows, np.array([50.0, 80.0]), 2.5)
+    rows[0], rows[1] = [13.9, 0.0, 7.25, 3.5], [12.0, 40.0, 3.0, 70.0]  # speeds (their sum: the metrics' mean speed), positions
+    code, _, length, fuel_mlps, leader_dist, speed_sum, fuel_sum = kernels.snapshot_columns(rows, np.array([50.0, 80.0]), 2.5)
     assert leader_dist.tolist() == [0.0, 1.5, 10.0, -1.0] and length.tolist() == [50.0, 80.0, 80.0, 50.0]
-    assert fuel_mlps.tolist() == [2.0] * 4 and code.dtype == np.int64 and fuel_sum == 8.0
+    assert fuel_mlps.tolist() == [2.0] * 4 and code.dtype == np.int64 and fuel_sum == 8.0 and speed_sum == rows[0].sum()
 
 
 def test_numpy_sum_is_numpys_pairwise_sum_to_the_bit():
@@ -82,3 +83,20 @@ def test_epsilon_greedy_draws_what_numpy_draws_and_leaves_the_generator_as_numpy
             if k % 10 == 0:  # numpy's own draws in between go on from where the kernel's left the generator
                 assert np.array_equal(numpy_rng.integers(0, 5, 7), kernel_rng.integers(0, 5, 7))
         assert numpy_rng.bit_generator.state == kernel_rng.bit_generator.state
+
+
+def test_epsilon_greedy_redraws_as_numpy_does_draws_nothing_for_one_action_and_takes_any_bit_generator():
+    # numpy's Lemire method draws again when a draw's low 32 bits fall under its threshold: about once in 2**32 draws
+    # for 5 actions, so the test above never sees it; with 3 * 2**30 actions (a zero-stride view: nothing allocated) a
+    # quarter of the draws are redrawn (2**31 actions: none, a threshold of 0). One action draws nothing; MT19937 as
+    # well as PCG64
+    for bits in (np.random.PCG64, np.random.MT19937):
+        numpy_rng, kernel_rng = np.random.Generator(bits(11)), np.random.Generator(bits(11))
+        bitgen = kernels.bit_generator(kernel_rng)
+        for width in (3 * 2**30, 2**31):
+            wide = np.lib.stride_tricks.as_strided(np.zeros(1, np.float32), shape=(64, width), strides=(0, 0))
+            assert (numpy_rng.random(64) < 1.0).all()  # ε = 1: every row explores
+            assert np.array_equal(kernels.epsilon_greedy(wide, 1.0, bitgen, None), numpy_rng.integers(0, width, 64))
+        q = np.random.default_rng(0).normal(size=(40, 1)).astype(np.float32)
+        assert np.array_equal(kernels.epsilon_greedy(q, 0.5, bitgen, None), _numpy_epsilon_greedy(numpy_rng, q, 0.5, None))
+        assert np.array_equal(numpy_rng.random(3), kernel_rng.random(3))  # the generators in the same state

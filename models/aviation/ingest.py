@@ -218,8 +218,10 @@ def normalise(df: pl.DataFrame, source: str) -> pl.DataFrame:
     schema = detect_schema(df.columns, source)
     # timestamps are parsed and checked eagerly; the other columns are one select, which polars runs in parallel
     exprs = [pl.int_range(pl.len(), dtype=pl.Int64).alias("row_index")]
-    df = df.with_columns(_text_as_typed(df[col]) for canon, col in schema.columns.items()
-                         if canon not in ("ts", "icao24", "callsign") and col in df.columns and df[col].dtype in (pl.String, pl.Null))
+    typed = [_text_as_typed(df[col]) for canon, col in schema.columns.items()
+             if canon not in ("ts", "icao24", "callsign") and col in df.columns and df[col].dtype in (pl.String, pl.Null)]
+    if typed:  # a CSV's; Parquet columns come typed
+        df = df.with_columns(typed)
     for canon, col in schema.columns.items():
         if col not in df.columns:
             dtype = {"callsign": pl.String, "onground": pl.Boolean}.get(canon, pl.Float64)

@@ -302,6 +302,21 @@ def numpy_params(q: RouteAgentsQ) -> dict[str, np.ndarray]:
     return {k: v.detach().numpy().copy() for k, v in q.state_dict().items()}
 
 
+def share_untrained(params: dict[str, np.ndarray], agents: list[str], trained: np.ndarray) -> dict[str, np.ndarray]:
+    """The weights with every route agent that never trained (trained[k] False: no transition in its replay buffer)
+    replaced by the first trained agent of its route ('route:class'), if there is one. An untrained agent still has its
+    random initial weights, yet it drives that route's vehicles of its class on other copies: on the demo's Sc1, 3 of
+    the 12 heavy agents get no vehicle in the 2 training copies, and their greedy choice, the argmax of initial
+    weights, held heavy vehicles at a standstill until SUMO teleported them (docs/history/urban.md, ninth session)."""
+    route = np.unique([a.rpartition(":")[0] for a in agents], return_inverse=True)[1]
+    done = np.flatnonzero(trained)
+    routes_done, at = np.unique(route[done], return_index=True)  # each route's first trained agent
+    first = np.full(route.max(initial=-1) + 1, -1)
+    first[routes_done] = done[at]
+    donor = np.where(~trained & (first[route] >= 0), first[route], np.arange(len(agents)))
+    return {k: v[donor] for k, v in params.items()}
+
+
 def epsilon_at(episode: int, episodes: int) -> float:
     explore = max(int(EXPLORATION_FRACTION * episodes), 1)
     return max(EPSILON_START * (1.0 - episode / explore), 0.0)
@@ -326,7 +341,8 @@ def train(
     threads as there are workers (the workers wait meanwhile); the same seed gives the same weights and log.
     gradient_steps per episode: None = the variant's default. shield: the training episodes run under the env's safety
     layer (the agents act and bootstrap only over allowed actions; off by default: not the thesis, and measured no
-    better, docs/urban.md). Returns (numpy weights, one log row per route agent and logged episode: see LOG_EPISODES)."""
+    better, docs/urban.md). Returns (numpy weights, route agents that saw no vehicle sharing their route's trained one's:
+    `share_untrained`; one log row per route agent and logged episode: see LOG_EPISODES)."""
     torch.manual_seed(seed)
     gen = torch.Generator().manual_seed(seed)
     rng = np.random.default_rng(seed)
@@ -367,4 +383,4 @@ def train(
                     f"teleports={m['teleports']} arrived={m['arrived']}/{job.n_vehicles} travel={m['avg_travel_time_s']:.1f}s "
                     f"loss={np.nanmean(losses):.3f}")
             episode += 1
-    return numpy_params(q), rows
+    return share_untrained(numpy_params(q), agents, buffers.size > 0), rows

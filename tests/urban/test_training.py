@@ -1,10 +1,14 @@
 """col-MARL / i-MARL training on real SUMO episodes: seeded determinism, learning signal, per-agent isolation."""
 
+import re
+from pathlib import Path
+
 import numpy as np
 import torch
 
 from models.urban import col_marl
-from models.urban.col_marl import EpisodeJob, ReplayBuffers, RouteAgentsQ, dqn_update, kit, run_episode, train
+from models.urban.col_marl import EpisodeJob, ReplayBuffers, RouteAgentsQ, dqn_update, kit, run_episode, share_untrained, train
+from models.urban.env import route_agent
 from models.parallel import ProcessPool
 from urban_fixtures import make_copy
 
@@ -12,6 +16,12 @@ from urban_fixtures import make_copy
 def _train(files, agents, variant, seed, episodes=3, gradient_steps=None, shield=False):
     with ProcessPool(1, run_episode) as pool:
         return train([(files, 15)], agents, variant, episodes, seed, pool, log=lambda _: None, gradient_steps=gradient_steps, shield=shield)
+
+
+def _drove(files, agents) -> np.ndarray:
+    """Which route agents have a vehicle in the copy (the others never train)."""
+    drove = {route_agent(v) for v in re.findall(r'<vehicle id="([^"]+)"', Path(files.routes).read_text())}
+    return np.array([a in drove for a in agents])
 
 
 def test_same_seed_same_policy_and_log(tmp_path, sc1_net, monkeypatch):
@@ -31,6 +41,32 @@ def test_same_seed_same_policy_and_log(tmp_path, sc1_net, monkeypatch):
     kept = [r for r in ra if r["episode"] in (0, 2)]
     assert [(r["agent"], r["episode"]) for r in rt] == [(r["agent"], r["episode"]) for r in kept]
     np.testing.assert_array_equal([(r["return"], r["loss"]) for r in rt], [(r["return"], r["loss"]) for r in kept])
+
+
+def test_a_route_agent_that_saw_no_vehicle_drives_with_its_routes_trained_agent(tmp_path, sc1_net):
+    # an agent with no vehicle in the training copies keeps its random initial weights, yet drives its route's vehicles of
+    # its class on other copies (demo Sc1: 3 heavy agents held their vehicles at a standstill until SUMO teleported them)
+    files, routes = make_copy(tmp_path / "c", sc1_net, 15, 60.0)
+    agents = [f"{r['route_id']}:{c}" for r in routes for c in ("car", "heavy")]
+    drove = _drove(files, agents)
+    params, _ = _train(files, agents, "col", 0, episodes=2, gradient_steps=2)
+    initial = {k: v.numpy() for k, v in RouteAgentsQ(len(agents), 6, torch.Generator().manual_seed(0)).state_dict().items()}
+    shared = alone = 0
+    for k, a in enumerate(agents):
+        peers = [j for j, b in enumerate(agents) if drove[j] and b.rpartition(":")[0] == a.rpartition(":")[0]]
+        if drove[k]:
+            assert not np.array_equal(params["w2"][k], initial["w2"][k])  # trained: no longer its initial weights
+        elif peers:
+            assert all(np.array_equal(params[n][k], params[n][peers[0]]) for n in params)
+            shared += 1
+        else:  # no trained agent on its route: left as it was
+            assert all(np.array_equal(params[n][k], initial[n][k]) for n in params)
+            alone += 1
+    assert shared and alone  # this copy has both cases
+    # the first trained agent of the route, whatever the class order; nothing to share from: unchanged
+    w = {"w": np.arange(5.0)[:, None]}
+    got = share_untrained(w, ["r0:car", "r0:heavy", "r1:heavy", "r1:car", "r2:car"], np.array([False, True, False, False, False]))
+    np.testing.assert_array_equal(got["w"][:, 0], [1, 1, 2, 3, 4])
 
 
 def test_training_under_the_safety_layer_acts_and_bootstraps_within_the_masks(tmp_path, sc1_net, monkeypatch):
@@ -117,8 +153,10 @@ def test_gradient_steps_per_episode_are_configurable(tmp_path, sc1_net):
     agents = [f"{r['route_id']}:{c}" for r in routes for c in ("car", "heavy")]
     (one, _), (default, _) = _train(files, agents, "col", 0, episodes=1, gradient_steps=1), _train(files, agents, "col", 0, episodes=1)
     init = RouteAgentsQ(len(agents), 6, torch.Generator().manual_seed(0)).w1.detach().numpy()
-    # one Adam step moves each trained weight by about lr; 40 steps move them further
-    assert np.abs(default["w1"] - init).max() > 5 * np.abs(one["w1"] - init).max() > 0
+    # one Adam step moves each trained weight by about lr; 40 steps move them further (the agents with no vehicle only
+    # take their route's trained agent's weights: left out)
+    trained = _drove(files, agents)
+    assert np.abs(default["w1"] - init)[trained].max() > 5 * np.abs(one["w1"] - init)[trained].max() > 0
 
 
 def test_stacked_q_is_the_tanh_network_and_chunked_gradients_equal_one_pass(monkeypatch):

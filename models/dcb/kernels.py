@@ -140,12 +140,18 @@ def act(delay, agents, q, explore_draw, coin, eps, action_step):
     return action, added, delay + added
 
 
+@jit(inline="always")
+def departs(action, hotspots):
+    """hold="depart": an agent departs when it holds, or when its delay took it out of every hotspot."""
+    return action == 0 or hotspots == 0
+
+
 @jit
 def depart_step(q, state, action, reward, next_state, agents, hotspots, departed, tail, learn, lr, gamma):
-    """hold="depart" (`train.run_episode`): the step's agents that held, or whose delay took them out of every hotspot,
-    depart - they never act again in the episode - and their last action is valued by the rewards they collect from
-    this step to the episode's end (tail: [flight] FLIGHT_* columns; state -1: not departed with a pending value), whose update `depart_end` makes; the other agents get Eq 5.6. Flights that departed at
-    earlier steps add this step's reward to their return. reward is read only when learn."""
+    """hold="depart" (`train.run_episode`): the step's agents that depart (`departs`) never act again in the episode, and
+    their last action is valued by the rewards they collect from this step to the episode's end (tail: [flight] FLIGHT_*
+    columns; state -1: not departed with a pending value), whose update `depart_end` makes; the other agents get Eq 5.6.
+    Flights that departed at earlier steps add this step's reward to their return. reward is read only when learn."""
     if learn:
         for i in range(departed.size):
             if tail[i, FLIGHT_STATE] >= 0:
@@ -154,10 +160,11 @@ def depart_step(q, state, action, reward, next_state, agents, hotspots, departed
     stay = np.empty(agents.size, dtype=np.int64)
     n_stay = 0
     for i in agents:
-        if action[i] == 0 or hotspots[i] == 0:
+        if departs(action[i], hotspots[i]):
             departed[i] = True
             if learn:
-                tail[i, FLIGHT_STATE], tail[i, FLIGHT_ACTION], tail[i, FLIGHT_RETURN], tail[i, FLIGHT_DISCOUNT] = state[i], action[i], reward[i], gamma
+                t = tail[i]
+                t[FLIGHT_STATE], t[FLIGHT_ACTION], t[FLIGHT_RETURN], t[FLIGHT_DISCOUNT] = state[i], action[i], reward[i], gamma
         else:
             stay[n_stay] = i
             n_stay += 1
@@ -389,7 +396,7 @@ def coordinated_episode(rng, tables, state_map, level_states, golden, table_bits
         gone = departed.copy()
         if depart:
             for i in agents:
-                gone[i] = action[i] == 0 or h[i] == 0
+                gone[i] = departs(action[i], h[i])
         if learn:
             reward = thesis_reward(tdc, delay_cost, delay, cost_per_min, c_plus)
             pending = coordinated_update(tables, state_map, level_states, edges, degree, n_flights, rows, q, action, reward, next_state,

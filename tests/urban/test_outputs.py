@@ -1,6 +1,5 @@
 """Trajectories (FCD), the Fig 4.4 profile and the rerun replay, from real recorded SUMO episodes."""
 
-import numpy as np
 import polars as pl
 import rerun as rr
 
@@ -8,16 +7,9 @@ from models.urban.col_marl import EpisodeJob
 from models.urban.experiments import SumoJob, run_job, trajectories_rows
 from models.urban.plots import busiest_route, junction_offsets_m, route_profile_png, route_profiles
 from models.urban.recording import write_episode_recording
-from urban_fixtures import crossing_copy, make_copy
+from urban_fixtures import constant_policy, crossing_copy, make_copy
 
 AGENTS = ["r000:car", "r000:heavy", "r001:car", "r001:heavy"]
-
-
-def _hold_policy() -> dict:
-    """Route agents whose greedy action is always 'zero acceleration' (index 2 of Table 4.1)."""
-    b2 = np.zeros((4, 5))
-    b2[:, 2] = 1.0
-    return {"w1": np.zeros((4, 6, 128)), "b1": np.zeros((4, 128)), "w2": np.zeros((4, 128, 5)), "b2": b2}
 
 
 def test_trajectories_profile_and_recording(tmp_path, sc1_net):
@@ -25,7 +17,7 @@ def test_trajectories_profile_and_recording(tmp_path, sc1_net):
     cross = crossing_copy(tmp_path / "x", sc1_net)
     keys = [("sc1", 0, "idm", 0, 20), ("cross", 0, "col_marl", 0, 2)]
     outputs = [run_job(SumoJob(files, "IDM", 0, 20, record=True)),
-               run_job(EpisodeJob(cross, "col", AGENTS, _hold_policy(), 0.0, 0, 2, record=True))]
+               run_job(EpisodeJob(cross, "col", AGENTS, constant_policy(AGENTS, 2), 0.0, 0, 2, record=True))]
     traj = trajectories_rows(keys, outputs)
     idm, crossing = traj.filter(pl.col("scenario") == "sc1"), traj.filter(pl.col("scenario") == "cross")
     assert idm["vehicle_id"].n_unique() == 20 and not idm["collided"].any() and not idm["teleported"].any()
@@ -46,8 +38,7 @@ def test_teleported_and_collided_vehicles_are_flagged_for_learners_and_baselines
     # a car ordered to brake stands until SUMO teleports it (120 s): its rows say so (that second's position jump and
     # acceleration are SUMO's, not driving); the baselines' colliders are flagged as the learners' are
     lone = crossing_copy(tmp_path / "turn", sc1_net, turn=True)
-    brake = {"w1": np.zeros((1, 6, 128)), "b1": np.zeros((1, 128)), "w2": np.zeros((1, 128, 5)), "b2": np.eye(5)[[0]]}
-    outputs = [run_job(EpisodeJob(lone, "col", ["r001:car"], brake, 0.0, 0, 1, record=True))]
+    outputs = [run_job(EpisodeJob(lone, "col", ["r001:car"], constant_policy(["r001:car"], 0), 0.0, 0, 1, record=True))]
     assert outputs[0][3] == {"r001.car.0"}
     traj = trajectories_rows([("turn", 0, "col_marl", 0, 1)], outputs)
     assert traj["teleported"].all() and not traj["collided"].any()

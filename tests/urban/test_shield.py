@@ -10,7 +10,7 @@ from models.urban.col_marl import EpisodeJob, run_episode
 from models.urban.env import SHIELD_BRAKE_HARD, SHIELD_UNSTALL, SHIELD_YIELD, UrbanParallelEnv, route_table, shield_masks
 from models.urban.network import artificial_network, read_net
 from models.urban.sim import NetIndex
-from urban_fixtures import crossing_copy, hand_copy
+from urban_fixtures import constant_policy, crossing_copy, hand_copy
 
 FREE = [True] * 5
 
@@ -146,22 +146,14 @@ def test_the_env_adds_a_look_ahead_row_for_the_next_junction_within_reach(tmp_pa
     assert all(len(c[0]) == 1 for c in calls if c[0][0] == j2)  # past the first junction: the second is its own row, then the goal
 
 
-def _constant_policy(agents, action):
-    """Every route agent picks `action` whatever the state."""
-    n = len(agents)
-    b2 = np.zeros((n, 5), np.float32)
-    b2[:, action] = 1.0
-    return {"w1": np.zeros((n, 6, 128), np.float32), "b1": np.zeros((n, 128), np.float32), "w2": np.zeros((n, 128, 5), np.float32), "b2": b2}
-
-
 def test_shield_prevents_the_forced_crossing_and_the_stall(tmp_path, sc1_net):
     agents = ["r000:car", "r001:car"]
     cross = crossing_copy(tmp_path / "cross", sc1_net)  # two cars that meet in the junction if both hold their speed
-    hold = [run_episode(EpisodeJob(cross, "col", agents, _constant_policy(agents, 2), 0.0, 0, 2, shield=s)).metrics for s in (False, True)]
+    hold = [run_episode(EpisodeJob(cross, "col", agents, constant_policy(agents, 2), 0.0, 0, 2, shield=s)).metrics for s in (False, True)]
     assert hold[0]["collisions"] == 1
     assert hold[1]["collisions"] == 0 and hold[1]["arrived"] == 2 and hold[1]["success"]
     lone = crossing_copy(tmp_path / "turn", sc1_net, turn=True)  # one car alone: a policy that always brakes stops it for good
-    brake = [run_episode(EpisodeJob(lone, "col", ["r001:car"], _constant_policy(["r001:car"], 0), 0.0, 0, 1, shield=s)).metrics for s in (False, True)]
+    brake = [run_episode(EpisodeJob(lone, "col", ["r001:car"], constant_policy(["r001:car"], 0), 0.0, 0, 1, shield=s)).metrics for s in (False, True)]
     assert brake[0]["teleports"] == 1 and not brake[0]["success"]  # SUMO teleports it after 120 s standing
     assert brake[1]["teleports"] == 0 and brake[1]["success"]
 
@@ -171,7 +163,7 @@ def test_without_the_arrival_window_the_forced_crossing_collides(tmp_path, sc1_n
     # junction count) both cars reach it together and collide, shield on
     monkeypatch.setattr(E, "SHIELD_WINDOW_S", 0.0)
     agents = ["r000:car", "r001:car"]
-    m = run_episode(EpisodeJob(crossing_copy(tmp_path / "cross", sc1_net), "col", agents, _constant_policy(agents, 2), 0.0, 0, 2, shield=True)).metrics
+    m = run_episode(EpisodeJob(crossing_copy(tmp_path / "cross", sc1_net), "col", agents, constant_policy(agents, 2), 0.0, 0, 2, shield=True)).metrics
     assert m["collisions"] == 1
 
 

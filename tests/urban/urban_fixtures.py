@@ -2,6 +2,8 @@
 
 from pathlib import Path
 
+import numpy as np
+
 from models.urban.network import enumerate_routes
 from models.urban.scenarios import Demand, vtypes_xml, write_copy
 from models.urban.sim import ScenarioFiles
@@ -30,3 +32,11 @@ def crossing_copy(folder: Path, net: Path, turn: bool = False) -> ScenarioFiles:
             '  <vehicle id="r001.car.1" type="car" route="r001" depart="0" departSpeed="10" departPos="base"/>\n')
     second = "bottom0A0 A0left0" if turn else "bottom0A0 A0top0"
     return hand_copy(folder, net, f'  <route id="r000" edges="left0A0 A0right0"/>\n  <route id="r001" edges="{second}"/>\n{cars}')
+
+
+def constant_policy(agents: list, action: int) -> dict:
+    """col-MARL weights whose every route agent picks `action` (index of Table 4.1) whatever the state."""
+    n = len(agents)
+    b2 = np.zeros((n, 5), np.float32)
+    b2[:, action] = 1.0
+    return {"w1": np.zeros((n, 6, 128), np.float32), "b1": np.zeros((n, 128), np.float32), "w2": np.zeros((n, 128, 5), np.float32), "b2": b2}

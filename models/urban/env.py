@@ -345,13 +345,16 @@ class UrbanParallelEnv(ParallelEnv):
         self.agents = list(obs)
         return obs, self._infos(obs)
 
-    def step(self, actions: dict | np.ndarray):
-        """actions: vehicle -> action (PettingZoo), or every agent's action as an integer array in the order of `agents` (the
-        trainer's rollout: no dict to build and read back)."""
+    def step(self, actions: dict | np.ndarray | list):
+        """actions: vehicle -> action (PettingZoo), or every agent's action as integers in the order of `agents`, an array
+        or a list (the trainer's rollout: no dict to build and read back)."""
         sim = self.sim
-        if isinstance(actions, np.ndarray):
+        if not isinstance(actions, dict):
+            actions = np.asarray(actions)
             if actions.shape != (len(self.agents),):  # a wrong length would drive the wrong vehicles, silently
                 raise ValueError(f"actions: an array of shape {actions.shape}, expected ({len(self.agents)},): one per agent, in the order of env.agents")
+            if actions.size and actions.dtype.kind not in "iu":  # a float would index the action table, or fail deep inside
+                raise ValueError(f"actions: {actions.dtype} values, expected integer action indices")
             ids, action = self.agents, actions
         else:
             ids = [a for a in self.agents if a in actions]

@@ -100,12 +100,13 @@ class _LaneCodes(dict):
 
 
 def _stamp(path: str) -> tuple | None:
-    """A file's version: modification time and size (None: no such file, read_net says so)."""
+    """A file's version: inode, modification time and size (None: no such file, read_net says so); the inode catches a
+    network replaced by rename within one clock tick at the same size."""
     try:
         st = Path(path).stat()
     except OSError:
         return None
-    return st.st_mtime_ns, st.st_size
+    return st.st_ino, st.st_mtime_ns, st.st_size
 
 
 @functools.lru_cache(maxsize=8)

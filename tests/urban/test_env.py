@@ -271,22 +271,25 @@ def test_actions_as_an_array_in_the_agents_order_are_the_dict(tmp_path, sc1_net)
     # (one env at a time: libsumo runs one simulation per process)
     files, _ = make_copy(tmp_path / "c", sc1_net, 20, 40.0)
 
-    def episode(as_array: bool) -> list:
+    def episode(form) -> list:
         env, rng, out = UrbanParallelEnv(files, "col"), np.random.default_rng(4), []
         env.reset(seed=4)
         while env.agents:
             action = rng.integers(0, 5, len(env.agents))
-            obs, *rest = env.step(action if as_array else dict(zip(env.agents, action.tolist())))
+            obs, *rest = env.step(form(env.agents, action))
             out.append(({v: o.tolist() for v, o in obs.items()}, *rest, list(env.agents)))
         env.close()
         return out
 
-    by_dict = episode(False)
-    assert len(by_dict) > 20 and episode(True) == by_dict
+    by_dict = episode(lambda agents, action: dict(zip(agents, action.tolist())))
+    assert len(by_dict) > 20 and episode(lambda agents, action: action) == by_dict
+    assert episode(lambda agents, action: action.tolist()) == by_dict  # a plain list is positional too, not ignored
     env = UrbanParallelEnv(files, "col")
     env.reset(seed=4)
     with pytest.raises(ValueError, match=rf"^actions: an array of shape \({len(env.agents) + 1},\), expected \({len(env.agents)},\)"):
         env.step(np.zeros(len(env.agents) + 1, int))
+    with pytest.raises(ValueError, match=r"^actions: float64 values, expected integer action indices$"):
+        env.step([0.5] * len(env.agents))
     env.close()
 
 

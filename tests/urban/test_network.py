@@ -1,9 +1,13 @@
 """Networks with the real SUMO tools: unsignalized, routes enumerated, bad files refused in one line."""
 
+import os
+import re
+
 import pytest
 
 from models.urban.experiments import REAL_NET
 from models.urban.network import UrbanInputError, artificial_network, enumerate_routes, junction_census, osm_network, sumo_network
+from models.urban.sim import NetIndex
 
 REPO_OSM = REAL_NET.parent / "monaco_network.osm.gz"
 
@@ -60,3 +64,18 @@ def test_bad_network_file_gives_one_clear_line(tmp_path):
     notosm.write_text("not xml at all")
     with pytest.raises(UrbanInputError, match="city.osm: netconvert failed"):
         osm_network(notosm, tmp_path / "out.net.xml")
+
+
+def test_a_network_replaced_by_rename_is_parsed_again(tmp_path, sc1_net):
+    # the network's facts are parsed once per file version: a file replaced by rename within one clock tick and at the
+    # same size is still a new version (its inode), not the cached old one
+    net, text = tmp_path / "n.net.xml", sc1_net.read_text()
+    net.write_text(text)
+    lane, digit = re.search(r'<lane id="([^:"][^"]*)"[^>]* length="(\d)', text).groups()
+    before = NetIndex(str(net)).lane_length[lane]
+    new = tmp_path / "new.net.xml"
+    new.write_text(re.sub(rf'(<lane id="{re.escape(lane)}"[^>]* length=")\d', rf"\g<1>{'2' if digit == '1' else '1'}", text, count=1))
+    st = net.stat()
+    os.replace(new, net)
+    os.utime(net, ns=(st.st_atime_ns, st.st_mtime_ns))
+    assert net.stat().st_size == st.st_size and NetIndex(str(net)).lane_length[lane] != before

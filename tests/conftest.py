@@ -7,6 +7,7 @@ import pytest
 
 REPO = Path(__file__).resolve().parent.parent
 OPENSKY = REPO / "data" / "opensky" / "kaliningrad_2022-02-22_2022-03-05.parquet"
+SWISS = REPO / "data" / "traffic_samples" / "switzerland_2018-08-01.parquet"
 
 
 @pytest.fixture(autouse=True)
@@ -38,3 +39,13 @@ def opensky_small(opensky_raw, tmp_path_factory) -> Path:
     path = tmp_path_factory.mktemp("data") / "six_flights.parquet"
     df.write_parquet(path)
     return path
+
+
+@pytest.fixture(scope="session")
+def swiss_tables():
+    """The bundled Swiss day through the DCB demand and the default grid: (sectors, flights, entries)."""
+    from models.dcb.airspace import GridSectorisation  # here, not at the top: only the DCB tests and bench need it
+    from models.dcb.experiment import airspace_tables, load_demand
+
+    points, flights, _, _ = load_demand(SWISS)
+    return airspace_tables(points, flights, GridSectorisation())

@@ -22,14 +22,12 @@ import pytest
 import benchlib as b
 from models.dcb import cmarl
 from models.dcb.cmarl import CoordinatedQ
-from models.dcb.airspace import GridSectorisation
-from models.dcb.experiment import airspace_tables, build_problem, load_demand
+from models.dcb.experiment import build_problem
 from models.dcb.loop import PerFlightEpisodes, PerFlightQ
 from models.dcb.mirl import IndependentQ
 from models.dcb.optimum import solve_optimum
 from models.dcb.train import EPISODES, GROUND, run_episode, train
 
-SWISS = b.REPO / "data" / "traffic_samples" / "switzerland_2018-08-01.parquet"
 TARGET_RATIO = 20.0
 TARGET_HCMARL_S = 300.0
 HCMARL_EPISODES = int(os.environ.get("TRAFFICLEARN_BENCH_DCB_EPISODES", str(EPISODES)))
@@ -61,12 +59,6 @@ class LoopCoordinatedQ(CoordinatedQ):
             joint = 2 * action[a] + action[b_]
             target = reward[a] / degree[a] + reward[b_] / degree[b_] + self.gamma * self.table[self._row(a, b_, next_state[a], next_state[b_])].max()
             self.table[row, joint] += np.float32(self.lr * (target - self.table[row, joint]))
-
-
-@pytest.fixture(scope="module")
-def swiss_tables():
-    points, flights, _, _ = load_demand(SWISS)
-    return airspace_tables(points, flights, GridSectorisation())
 
 
 @pytest.fixture(scope="module")

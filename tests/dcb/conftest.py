@@ -1,20 +1,9 @@
 """A small real DCB case: the Swiss ADS-B day's flights first entering the grid 09:00-10:59 UTC."""
 
-from pathlib import Path
-
 import polars as pl
 import pytest
 
-from models.dcb.airspace import GridSectorisation
-from models.dcb.experiment import airspace_tables, build_problem, load_demand
-
-SWISS = Path(__file__).resolve().parents[2] / "data" / "traffic_samples" / "switzerland_2018-08-01.parquet"
-
-
-@pytest.fixture(scope="session")
-def swiss_tables():
-    points, flights, _, _ = load_demand(SWISS)
-    return airspace_tables(points, flights, GridSectorisation())
+from models.dcb.experiment import build_problem
 
 
 @pytest.fixture(scope="session")

@@ -4,7 +4,7 @@ import dagster as dg
 import polars as pl
 
 from assets.dcb import ASSETS, CHECKS
-from tests.dcb.conftest import SWISS
+from tests.conftest import SWISS
 from warehouse.io_manager import ParquetIOManager
 from warehouse.storage import read_table
 

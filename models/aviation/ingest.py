@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
+from models.aviation import kernels
 from models.aviation.order import runs
 from models.aviation.resample import EARTH_RADIUS_M
 from models.units import M_PER_FT, MPS_PER_FPM, MPS_PER_KT
@@ -80,7 +81,6 @@ TRAFFIC = Schema(
 )
 SCHEMAS = (OPENSKY, TRAFFIC)
 CANONICAL = list(OPENSKY.columns)
-SPLIT_COLUMNS = ("row_index", "_ac", "ts")  # what the slim frame passes on to the flight split
 
 
 @dataclass(frozen=True)
@@ -288,144 +288,14 @@ def check_units(df: pl.DataFrame, schema: Schema, source: str) -> None:
 # --------------------------------------------------------------------------------------------- cleaning
 
 
-def _leg_m(lat1: np.ndarray, lon1: np.ndarray, lat2: np.ndarray, lon2: np.ndarray) -> np.ndarray:
-    """Equirectangular distance: within 0.5 % of great-circle for legs under 500 km, at a third of
-    haversine's cost, which is plenty for an impossible-speed test."""
-    dlon = np.radians((lon2 - lon1 + 180.0) % 360.0 - 180.0) * np.cos(np.radians((lat1 + lat2) / 2))
-    return EARTH_RADIUS_M * np.sqrt(np.radians(lat2 - lat1) ** 2 + dlon**2)
-
-
-def _prev(c: str) -> pl.Expr:
-    """Value of the previous row of the same aircraft (rows sorted by aircraft, `_ac` = aircraft id).
-
-    A shift guarded by the aircraft id is the same as `shift(1).over("icao24")` on sorted rows, without a window."""
-    return pl.when(pl.col("_ac") == pl.col("_ac").shift(1)).then(pl.col(c).shift(1))
-
-
-@dataclass(frozen=True)
-class SpeedSpike:
-    """Rule: an isolated point the aircraft could not have reached and left again (both legs impossible).
-
-    Computed on numpy arrays rather than as an expression, so that the trigonometry runs only for the few
-    legs that a cheap bound cannot clear. Each leg is computed once, as the leg from the previous row, and
-    only counts within one aircraft; the leg to the next point is the next row's."""
-
-    max_speed_mps: float
-    max_climb_mps: float
-    columns = ("_ac", "ts", "lat", "lon", "alt_m")
-
-    def __call__(self, rows: pl.DataFrame) -> np.ndarray:
-        if rows.height < 3:
-            return np.zeros(rows.height, dtype=bool)
-        ac, lat, lon, alt = (rows[c].to_numpy() for c in ("_ac", "lat", "lon", "alt_m"))
-        same = ac[1:] == ac[:-1]
-        # 1 s floor on dt: OpenSky timestamps are whole seconds, a 0 s step would make every move "infinite"
-        dt = np.maximum(np.diff(rows["ts"].dt.epoch("us").to_numpy()) / 1e6, 1.0)
-        steep = same & (np.abs(np.diff(alt)) / dt > self.max_climb_mps)  # as a rate: `> c * dt` rounds otherwise at the limit
-        # A cheap bound clears nearly every leg: with cos x <= 1 - x²/2 + x⁴/24 (0.2 % high at 60°) in place of
-        # the cosine a leg only gets longer, so a leg possible under it is possible; the few others get the
-        # exact distance with its trigonometry.
-        dlon = np.abs(np.diff(lon))
-        dlon = np.minimum(dlon, 360.0 - dlon)  # the shorter way round
-        x2 = (lat[1:] + lat[:-1]) ** 2 * (np.pi / 360) ** 2  # (mean latitude in radians)²
-        dlon *= 1 - x2 * (0.5 - x2 / 24)
-        reach_deg = dt * np.degrees(self.max_speed_mps / EARTH_RADIUS_M)
-        fast = same & (np.diff(lat) ** 2 + dlon**2 > reach_deg**2 * (1 - 1e-9))
-        i = np.flatnonzero(fast)
-        fast[i] = _leg_m(lat[i], lon[i], lat[i + 1], lon[i + 1]) / dt[i] > self.max_speed_mps
-        both = lambda leg: leg[:-1] & leg[1:]  # noqa: E731  (the leg in and the leg out of a row)
-        return np.r_[False, both(fast) | both(steep), False]
-
-
-def _row_rules(cfg: IngestConfig) -> list[list[tuple[str, pl.Expr | SpeedSpike]]]:
-    """Stages of (reason, expression (or SpeedSpike) true for rows to reject). Within a stage the first matching reason
-    wins and all rules see the same rows; a stage sees only the rows the previous stages kept. The first
-    stage must test each row alone (it runs before the rows are sorted).
-
-    Rows are sorted by (aircraft, ts, row_index), so a duplicate is a row equal to its predecessor and the
-    first of the duplicates (lowest row_index) is the one kept."""
-    return [
-        [("missing_value", pl.any_horizontal(pl.col("ts", "_ac", "lat", "lon", "alt_m").is_null()))],
-        [
-            ("duplicate_row", (pl.col("ts") == _prev("ts")).fill_null(False)),
-            ("on_ground", pl.col("onground").fill_null(False)),
-            (
-                "out_of_range",
-                ~pl.col("lat").is_between(-90, 90)
-                | ~pl.col("lon").is_between(-180, 180)
-                | ~pl.col("alt_m").is_between(cfg.min_alt_m, cfg.max_alt_m)
-                | (pl.col("groundspeed_mps").fill_null(0) > 2 * cfg.max_speed_mps),
-            ),
-        ],
-        # OpenSky repeats the last position until a new one arrives: keep only received positions
-        [
-            (
-                "repeated_position",
-                pl.when(pl.col("pos_time").is_not_null())
-                .then(pl.col("pos_time") == _prev("pos_time"))
-                .otherwise((pl.col("lat") == _prev("lat")) & (pl.col("lon") == _prev("lon")))
-                .fill_null(False),
-            )
-        ],
-        [("speed_spike", SpeedSpike(cfg.max_speed_mps, cfg.max_climb_mps))],
-    ]
-
-
-def _first_match(frame: pl.DataFrame, stage: list[tuple[str, pl.Expr | SpeedSpike]]) -> np.ndarray:
-    """Per row of `frame`: 0, or 1 + the number of the first rule of the stage that matches it."""
-    rules = [pl.lit(pl.Series(rule(frame))) if isinstance(rule, SpeedSpike) else rule for _, rule in stage]
-    # the rule as a small integer: a string per row would cost more than the rules themselves
-    first = pl.coalesce(pl.when(rule).then(pl.lit(j + 1, pl.UInt8)) for j, rule in enumerate(rules)).fill_null(0)
-    return frame.select(first).to_series().to_numpy()
-
-
-def _split_flights(kept: pl.DataFrame, row: np.ndarray, raw: pl.DataFrame, cfg: IngestConfig) -> tuple[pl.Series, pl.DataFrame]:
-    """Split the kept rows (in (aircraft, ts) order; `row`: their row_index) into flights, contiguous runs of
-    rows: a new one at an aircraft's first point, after a long gap or a callsign change; name them
-    callsign_icao24_YYYYMMDDTHHMM from their first point (names are built once per flight).
-
-    Returns (per kept row: the raw row whose callsign it takes: its own or, where it has none, the
-    aircraft's last one before it; one row per flight, in row order: flight_id, flight_rank = rank of the
-    name, points)."""
-    code = raw["_cs"].gather(kept["row_index"])
-    callsign_row = kept["row_index"]
-    if code.null_count():  # a window per aircraft, only when some callsign is missing
-        filled = kept.select(
-            "_ac", _row=pl.when(code.is_not_null()).then("row_index"), _cs=code
-        ).select(pl.col("_row", "_cs").fill_null(strategy="forward").over("_ac"))
-        callsign_row, code = filled["_row"], filled["_cs"]  # _row: null until the aircraft's first callsign
-    ac, ts = kept["_ac"].to_numpy(), kept["ts"].dt.epoch("us").to_numpy()
-    known = code.is_not_null().to_numpy()
-    code = code.fill_null(0).to_numpy()
-    # a change between two known callsigns of the same aircraft (codes: cheaper than comparing strings)
-    renamed = known[1:] & known[:-1] & (code[1:] != code[:-1])
-    # [: len(row)]: no flight at all when every row was rejected
-    new = np.r_[True, (ac[1:] != ac[:-1]) | (np.diff(ts) / 1e6 > cfg.gap_split_s) | renamed][: len(row)]
-    first = np.flatnonzero(new)
-    firsts = pl.DataFrame(
-        {"callsign": raw["callsign"].gather(callsign_row.gather(first)), "icao24": raw["icao24"].gather(row[first]), "ts": kept["ts"].gather(first)}
-    )
-    flights = firsts.select(
-        flight_id=pl.concat_str(pl.col("callsign").fill_null(pl.col("icao24")), "icao24", pl.col("ts").dt.strftime("%Y%m%dT%H%M"), separator="_"),
-        points=pl.Series(np.diff(np.r_[first, len(row)])),
-    )
-    # the rank of the name orders the flights by (flight_id, ts) comparing integers instead of strings
-    return callsign_row, flights.with_columns(flight_rank=pl.col("flight_id").rank("dense"))
-
-
-def _runs(first: np.ndarray, length: np.ndarray) -> np.ndarray:
-    """Row positions of the runs [first, first + length), one after the other."""
-    return np.repeat(first - (np.cumsum(length) - length), length) + np.arange(length.sum())
-
-
-def _aircraft_time_order(rows: pl.DataFrame, among: np.ndarray) -> np.ndarray:
-    """Positions of the rows `among` (no null ts or aircraft) in (aircraft, ts, row_index) order, by stable
-    numpy sorts of integer keys (timsort merges the runs of a file written aircraft by aircraft) and no column
-    moved until the one gather, ~2x cheaper than polars sorting the frame."""
-    ac = rows["_ac"].gather(among).to_numpy().astype(np.int64)
-    ts = rows["ts"].dt.epoch("us").gather(among).to_numpy()
+def _aircraft_time_order(ac: np.ndarray, ts: np.ndarray, among: np.ndarray) -> np.ndarray:
+    """Positions of the rows `among` in (aircraft, ts, row) order, by stable numpy sorts of integer keys (timsort
+    merges the runs of a file written aircraft by aircraft), ~2x cheaper than polars sorting a frame."""
+    if len(among) < len(ac):
+        ac, ts = ac[among], ts[among]
     if not len(ts):
         return among
+    ac = ac.astype(np.int64)
     ts = ts - ts.min()
     if int(ac.max()).bit_length() + int(ts.max()).bit_length() <= 62:  # both in one int64 key: one sort
         return among[np.argsort((ac << int(ts.max()).bit_length()) | ts, kind="stable")]
@@ -433,58 +303,89 @@ def _aircraft_time_order(rows: pl.DataFrame, among: np.ndarray) -> np.ndarray:
     return among[order[np.argsort(ac[order], kind="stable")]]
 
 
-def _tested(stage: list[tuple[str, pl.Expr | SpeedSpike]]) -> set[str]:
-    """Columns the rules of a stage read."""
-    return {c for _, rule in stage for c in (rule.columns if isinstance(rule, SpeedSpike) else rule.meta.root_names())}
+def _split_flights(raw: pl.DataFrame, row: np.ndarray, new: np.ndarray, callsign_row: np.ndarray) -> pl.DataFrame:
+    """One row per flight of the kept rows `row` (contiguous runs, starting where `new`), in row order: flight_id =
+    callsign_icao24_YYYYMMDDTHHMM from its first point (its callsign: that of callsign_row, -1: none, the icao24
+    then), flight_rank = rank of the name, points. Names are built once per flight."""
+    first = np.flatnonzero(new)
+    named = callsign_row[first]
+    firsts = pl.DataFrame({"icao24": raw["icao24"].gather(row[first]), "ts": raw["ts"].gather(row[first])}).with_columns(
+        callsign=raw["callsign"].gather(np.maximum(named, 0)).set(pl.Series(named < 0), None)
+    )
+    flights = firsts.select(
+        flight_id=pl.concat_str(pl.col("callsign").fill_null(pl.col("icao24")), "icao24", pl.col("ts").dt.strftime("%Y%m%dT%H%M"), separator="_"),
+        points=pl.Series(np.diff(np.r_[first, len(row)])),
+    )
+    # the rank of the name orders the flights by (flight_id, ts) comparing integers instead of strings
+    return flights.with_columns(flight_rank=pl.col("flight_id").rank("dense"))
+
+
+def _runs(first: np.ndarray, length: np.ndarray) -> np.ndarray:
+    """Row positions of the runs [first, first + length), one after the other."""
+    return np.repeat(first - (np.cumsum(length) - length), length) + np.arange(length.sum())
 
 
 def clean(raw: pl.DataFrame, source: str, cfg: IngestConfig = IngestConfig()) -> tuple[pl.DataFrame, pl.DataFrame]:
     """Normalised rows (`normalise`'s output: row_index is the row's position) -> (cleaned points with
     flight_id, rejects with reason). Every row ends in one.
 
-    The rules run on a slim frame of the numbers they test, sorted by (aircraft, ts, row_index), and write
-    each rejected row's reason into one array over the raw rows; the tracks and the rejects are then gathered
-    from the raw rows once each, in their final order."""
-    missing, *stages = _row_rules(cfg)
-    names = [name for stage in [missing, *stages] for name, _ in stage] + ["short_segment"]
-    reason = np.zeros(raw.height, dtype=np.uint8)  # per raw row: 0 kept, else 1 + number of the reason in names
+    Rules, each rejected row getting the first reason that hits it (models/aviation/kernels.py): a missing time,
+    aircraft or position; then, on the rows sorted by (aircraft, ts, row), a duplicate, a point on the ground or out
+    of range; of the rows left, a repeated (stale) position; of those, a speed or climb spike; last, a flight (split
+    at a long gap or a callsign change) of fewer than min_points rows. The rules read numpy arrays of the raw rows
+    and write each rejected row's reason into one array; the tracks and the rejects are then gathered from the raw
+    rows once each, in their final order."""
+    reason = np.zeros(raw.height, dtype=np.uint8)  # per raw row: 0 kept, else its code (kernels.REASONS)
+    # the kernels' inputs: numbers in one select (polars runs it in parallel), nulls made values no rule reads or NaN;
+    # flags from their true positions (polars turns a Boolean column into numpy bit by bit, ~4x slower)
+    c = {
+        col.name: col.to_numpy()
+        for col in raw.select(
+            ac=pl.col("_ac").fill_null(0),
+            ts=pl.col("ts").dt.epoch("us").fill_null(0),
+            lat=pl.col("lat").fill_null(np.nan), lon=pl.col("lon").fill_null(np.nan), alt_m=pl.col("alt_m").fill_null(np.nan),
+            groundspeed_mps=pl.col("groundspeed_mps").fill_null(0.0),
+            pos=pl.col("pos_time").fill_null(0.0),
+            cs=pl.col("_cs").cast(pl.Int64).fill_null(-1),
+        ).iter_columns()
+    }
 
-    def reject(row: np.ndarray, rule: np.ndarray, offset: int) -> np.ndarray:
-        """Record the rows a stage hit; returns the mask of rows it keeps."""
-        hit = rule > 0
-        reason[row[hit]] = rule[hit] + offset
-        return ~hit
+    def flag(where: pl.Expr, value: bool) -> np.ndarray:
+        out = np.full(raw.height, not value)
+        out[raw.select(pl.arg_where(where)).to_series().to_numpy()] = value
+        return out
 
-    # the slim frame: the columns the rules test and what the split needs
-    slim = set(SPLIT_COLUMNS).union(*map(_tested, [missing, *stages]))
-    rows = raw.select(c for c in raw.columns if c in slim)
-    # the first stage looks at each row alone, so it runs before the sort, which then orders only the rows left
-    ok = reject(np.arange(raw.height), _first_match(rows, missing), 0)
-    kept = rows[_aircraft_time_order(rows, np.flatnonzero(ok))]
-    offset = len(missing)
-    for i, stage in enumerate(stages):
-        ok = reject(kept["row_index"].to_numpy(), _first_match(kept, stage), offset)
-        offset += len(stage)
-        # carry on only with the columns that the later stages and the split use
-        later = set(SPLIT_COLUMNS).union(*map(_tested, stages[i + 1 :]))
-        kept = kept.select(c for c in kept.columns if c in later)
-        if not ok.all():  # a filter copies every column: skip it when the stage rejects nothing
-            kept = kept.filter(pl.Series(ok))
-    row = kept["row_index"].to_numpy()
-    callsign_row, flights = _split_flights(kept, row, raw, cfg)
+    missing = flag(pl.any_horizontal(pl.col("ts", "_ac", "lat", "lon", "alt_m").is_null()), True)
+    onground = flag(pl.col("onground").fill_null(False), True)
+    has_pos = flag(pl.col("pos_time").is_null(), False)
+    # the first rule looks at each row alone, so it runs before the sort, which then orders only the rows left
+    reason[missing] = kernels.MISSING_VALUE
+    order = _aircraft_time_order(c["ac"], c["ts"], np.flatnonzero(~missing))
+    kept = kernels.point_rules(
+        order, c["ac"], c["ts"], c["lat"], c["lon"], c["alt_m"], onground, c["groundspeed_mps"], c["pos"], has_pos,
+        cfg.min_alt_m, cfg.max_alt_m, cfg.max_speed_mps, reason,
+    )
+    spike = kernels.speed_spikes(kept, c["ac"], c["ts"], c["lat"], c["lon"], c["alt_m"], cfg.max_speed_mps, cfg.max_climb_mps, EARTH_RADIUS_M)
+    reason[kept[spike]] = kernels.SPEED_SPIKE
+    row = kept[~spike]
+    new, callsign_row = kernels.flight_starts(row, c["ac"], c["ts"], c["cs"], cfg.gap_split_s)
+    flights = _split_flights(raw, row, new, callsign_row)
     # rows are in (aircraft, ts) order and a flight_id names one aircraft, so the flights (contiguous runs of
     # rows) put in the order of their names, stably, give (flight_id, ts) order: one gather of whole runs
     # instead of sorting the rows, which also leaves out the runs too short to keep
     points = flights["points"].to_numpy()
     first = np.cumsum(points) - points
     short = points < cfg.min_points
-    reason[row[_runs(first[short], points[short])]] = len(names)
+    reason[row[_runs(first[short], points[short])]] = kernels.SHORT_SEGMENT
     order = np.flatnonzero(~short)
     order = order[np.argsort(flights["flight_rank"].to_numpy()[order], kind="stable")]
     final = _runs(first[order], points[order])
     tracks = raw.select("ts", "icao24", "lat", "lon", "alt_m", "groundspeed_mps", "track_deg", "vertical_rate_mps")[row[final]]
-    callsign = raw["callsign"].gather(callsign_row.gather(final))
-    if callsign.null_count():  # a flight without a callsign keeps its icao24 as one: downstream keys are never null
+    named = callsign_row[final]
+    callsign = raw["callsign"].gather(np.maximum(named, 0))
+    if (named < 0).any():  # a flight without a callsign keeps its icao24 as one: downstream keys are never null
+        callsign = callsign.set(pl.Series(named < 0), None)
+    if callsign.null_count():
         callsign = callsign.fill_null(tracks["icao24"])
     flight_id = flights["flight_id"].gather(np.repeat(order, points[order])).set_sorted()  # flagged: checks downstream are free
     tracks = tracks.with_columns(flight_id=flight_id, callsign=callsign).select(
@@ -494,7 +395,7 @@ def clean(raw: pl.DataFrame, source: str, cfg: IngestConfig = IngestConfig()) ->
     out = np.flatnonzero(reason)
     rejects = pl.concat(
         [
-            pl.DataFrame({"row_index": out, "reason": pl.Series(names).gather(reason[out] - 1)}),
+            pl.DataFrame({"row_index": out, "reason": pl.Series(kernels.REASONS).gather(reason[out] - 1)}),
             raw.select("icao24", "callsign", "ts", "lat", "lon", "alt_m")[out],
         ],
         how="horizontal",

@@ -1,0 +1,111 @@
+"""The ingest's row rules and flight split as numba kernels: one pass over the rows in (aircraft, ts) order where the
+polars rules made a dozen passes and collects per stage (issue 2: the chain on the bundled file >= 20x `traffic`).
+
+Results are those of the polars/numpy rules they replaced, bit for bit: the same comparisons and the same float
+operations in the same order (tests/aviation/test_ingest_fast_paths.py). numba caches the machine code beside this
+file; a kernel's cache is invalidated only by a change of this file, so it imports nothing from the project and
+takes the constants it uses as arguments (models/jit.py).
+"""
+
+import numpy as np
+
+from models.jit import jit
+
+# reason codes of rejected rows: 0 is kept, code c is REASONS[c - 1] (ingest writes them as strings)
+REASONS = ("missing_value", "duplicate_row", "on_ground", "out_of_range", "repeated_position", "speed_spike", "short_segment")
+MISSING_VALUE, DUPLICATE_ROW, ON_GROUND, OUT_OF_RANGE, REPEATED_POSITION, SPEED_SPIKE, SHORT_SEGMENT = range(1, len(REASONS) + 1)
+
+
+@jit
+def point_rules(order, ac, ts_us, lat, lon, alt_m, onground, groundspeed_mps, pos_us, has_pos, min_alt_m, max_alt_m,
+                max_speed_mps, reason):
+    """Rows `order` (no missing value, in (aircraft, ts, row) order) -> the rows that pass, in that order; writes the
+    code of each rejected row into reason[row].
+
+    Two stages. The first tests each row against the previous row of `order` (duplicate: same aircraft and ts, so
+    the first of equal rows is kept), then on its own (on the ground; out of range, a null ground speed counting as
+    0). The second sees only the rows the first kept: a repeated position is the previous kept row's position time
+    again (NaN equals NaN, as in polars), or, where the row has no position time, its latitude and longitude again."""
+    out = np.empty(order.size, dtype=np.int64)
+    n = 0
+    last = -1  # the previous row that passed the first stage
+    for k in range(order.size):
+        r = order[k]
+        if k > 0 and ac[r] == ac[order[k - 1]] and ts_us[r] == ts_us[order[k - 1]]:
+            reason[r] = DUPLICATE_ROW
+            continue
+        if onground[r]:
+            reason[r] = ON_GROUND
+            continue
+        if not (-90.0 <= lat[r] <= 90.0 and -180.0 <= lon[r] <= 180.0 and min_alt_m <= alt_m[r] <= max_alt_m) or (
+            groundspeed_mps[r] > 2 * max_speed_mps
+        ):
+            reason[r] = OUT_OF_RANGE
+            continue
+        p, last = last, r
+        if p >= 0 and ac[p] == ac[r]:
+            if has_pos[r]:
+                repeated = has_pos[p] and (pos_us[r] == pos_us[p] or (pos_us[r] != pos_us[r] and pos_us[p] != pos_us[p]))
+            else:
+                repeated = lat[r] == lat[p] and lon[r] == lon[p]
+            if repeated:
+                reason[r] = REPEATED_POSITION
+                continue
+        out[n] = r
+        n += 1
+    return out[:n]
+
+
+@jit
+def speed_spikes(rows, ac, ts_us, lat, lon, alt_m, max_speed_mps, max_climb_mps, earth_radius_m):
+    """Per row of `rows` (in (aircraft, ts) order): an isolated point the aircraft could not have reached and left
+    again, both legs (from the previous and to the next row of the same aircraft) too fast, or both too steep.
+
+    A leg's time has a 1 s floor: OpenSky timestamps are whole seconds, a 0 s step would make every move "infinite".
+    Climb is compared as a rate (`> c * dt` rounds otherwise at the limit). A cheap bound clears nearly every leg: with
+    cos x <= 1 - x²/2 + x⁴/24 (0.2 % high at 60°) in place of the cosine a leg only gets longer, so a leg possible
+    under it is possible; the few others get the equirectangular distance (within 0.5 % of great-circle under
+    500 km) with its trigonometry."""
+    n = rows.size
+    fast = np.zeros(n, dtype=np.bool_)  # fast[i], steep[i]: the leg from row i - 1 to row i
+    steep = np.zeros(n, dtype=np.bool_)
+    reach_deg_per_s = np.degrees(max_speed_mps / earth_radius_m)
+    x2_per_lat2 = (np.pi / 360) ** 2  # (mean latitude in radians)² per (lat1 + lat2)²
+    for i in range(1, n):
+        a, b = rows[i - 1], rows[i]
+        if ac[a] != ac[b]:
+            continue
+        dt = max((ts_us[b] - ts_us[a]) / 1e6, 1.0)
+        steep[i] = np.abs(alt_m[b] - alt_m[a]) / dt > max_climb_mps
+        dlon = np.abs(lon[b] - lon[a])
+        dlon = min(dlon, 360.0 - dlon)  # the shorter way round
+        x2 = (lat[b] + lat[a]) ** 2 * x2_per_lat2
+        dlon *= 1 - x2 * (0.5 - x2 / 24)
+        reach_deg = dt * reach_deg_per_s
+        if (lat[b] - lat[a]) ** 2 + dlon**2 > reach_deg**2 * (1 - 1e-9):
+            dx = np.radians((lon[b] - lon[a] + 180.0) % 360.0 - 180.0) * np.cos(np.radians((lat[a] + lat[b]) / 2))
+            fast[i] = earth_radius_m * np.sqrt(np.radians(lat[b] - lat[a]) ** 2 + dx**2) / dt > max_speed_mps
+    spike = np.zeros(n, dtype=np.bool_)
+    for i in range(1, n - 1):
+        spike[i] = (fast[i] and fast[i + 1]) or (steep[i] and steep[i + 1])
+    return spike
+
+
+@jit
+def flight_starts(rows, ac, ts_us, cs, gap_split_s):
+    """Rows `rows` (kept, in (aircraft, ts) order) -> (whether each starts a flight, the row whose callsign it takes:
+    its own, else the aircraft's last one before it, else -1).
+
+    A flight starts at an aircraft's first row, after a silence longer than gap_split_s, and where the (carried
+    forward) callsign code `cs` (-1: none) changes from one known callsign to another."""
+    n = rows.size
+    new = np.zeros(n, dtype=np.bool_)
+    callsign_row = np.full(n, -1, dtype=np.int64)
+    for k in range(n):
+        r = rows[k]
+        first = k == 0 or ac[r] != ac[rows[k - 1]]
+        carried = -1 if first else callsign_row[k - 1]
+        callsign_row[k] = r if cs[r] >= 0 else carried
+        renamed = cs[r] >= 0 and carried >= 0 and cs[r] != cs[carried]
+        new[k] = first or (ts_us[r] - ts_us[rows[k - 1]]) / 1e6 > gap_split_s or renamed
+    return new, callsign_row

@@ -57,9 +57,10 @@ def point_rules(order, ac, ts_us, lat, lon, alt_m, onground, groundspeed_mps, po
 
 
 @jit
-def speed_spikes(rows, ac, ts_us, lat, lon, alt_m, max_speed_mps, max_climb_mps, earth_radius_m):
-    """Per row of `rows` (in (aircraft, ts) order): an isolated point the aircraft could not have reached and left
-    again, both legs (from the previous and to the next row of the same aircraft) too fast, or both too steep.
+def speed_spikes(rows, ac, ts_us, lat, lon, alt_m, max_speed_mps, max_climb_mps, earth_radius_m, reason):
+    """Rows `rows` (in (aircraft, ts) order) -> those that pass, in that order; writes SPEED_SPIKE into reason[row] of
+    an isolated point the aircraft could not have reached and left again: both legs (from the previous and to the
+    next row of the same aircraft) too fast, or both too steep.
 
     A leg's time has a 1 s floor: OpenSky timestamps are whole seconds, a 0 s step would make every move "infinite".
     Climb is compared as a rate (`> c * dt` rounds otherwise at the limit). A cheap bound clears nearly every leg: with
@@ -85,10 +86,15 @@ def speed_spikes(rows, ac, ts_us, lat, lon, alt_m, max_speed_mps, max_climb_mps,
         if (lat[b] - lat[a]) ** 2 + dlon**2 > reach_deg**2 * (1 - 1e-9):
             dx = np.radians((lon[b] - lon[a] + 180.0) % 360.0 - 180.0) * np.cos(np.radians((lat[a] + lat[b]) / 2))
             fast[i] = earth_radius_m * np.sqrt(np.radians(lat[b] - lat[a]) ** 2 + dx**2) / dt > max_speed_mps
-    spike = np.zeros(n, dtype=np.bool_)
-    for i in range(1, n - 1):
-        spike[i] = (fast[i] and fast[i + 1]) or (steep[i] and steep[i + 1])
-    return spike
+    out = np.empty(n, dtype=np.int64)
+    m = 0
+    for i in range(n):
+        if 0 < i < n - 1 and ((fast[i] and fast[i + 1]) or (steep[i] and steep[i + 1])):
+            reason[rows[i]] = SPEED_SPIKE
+        else:
+            out[m] = rows[i]
+            m += 1
+    return out[:m]
 
 
 @jit

@@ -16,8 +16,9 @@ def in_flight_order(df: pl.DataFrame) -> pl.DataFrame:
     return df if (fid.gather(back) != fid.gather(back - 1)).all() else df.sort("flight_id", "ts")
 
 
-def runs(values: pl.Series) -> tuple[np.ndarray, np.ndarray]:
-    """(run id of every row, first row of every run) for the runs of equal consecutive values (e.g. a flight's rows)."""
-    run = values.rle_id().to_numpy()
+def runs(values: pl.Series, run_id: pl.Series | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(run id of every row, first row of every run) for the runs of equal consecutive values (e.g. a flight's rows);
+    run_id: values.rle_id() where the caller has it."""
+    run = (values.rle_id() if run_id is None else run_id).to_numpy()
     # run ids count up from 0 in row order: each run's first row is a binary search away, no pass over the rows
     return run, np.searchsorted(run, np.arange(run[-1] + 1 if len(run) else 0, dtype=run.dtype))

@@ -14,24 +14,27 @@ from models.jit import jit
 # reason codes of rejected rows: 0 is kept, code c is REASONS[c - 1] (ingest writes them as strings)
 REASONS = ("missing_value", "duplicate_row", "on_ground", "out_of_range", "repeated_position", "speed_spike", "short_segment")
 MISSING_VALUE, DUPLICATE_ROW, ON_GROUND, OUT_OF_RANGE, REPEATED_POSITION, SPEED_SPIKE, SHORT_SEGMENT = range(1, len(REASONS) + 1)
+FAST, STEEP = 1, 2  # a leg's bits in `speed_spikes`
 
 
 @jit
 def point_rules(order, ac, ts_us, lat, lon, alt_m, onground, groundspeed_mps, pos_us, has_pos, min_alt_m, max_alt_m,
                 max_speed_mps, reason):
-    """Rows `order` (no missing value, in (aircraft, ts, row) order) -> the rows that pass, in that order; writes the
-    code of each rejected row into reason[row].
+    """Rows `order` (no missing value, in (aircraft, ts, row) order) -> the rows that pass, in that order, moved to the
+    head of `order` (returned as a view of it: no new array, whose pages would cost about what this pass does); writes
+    the code of each rejected row into reason[row].
 
     Two stages. The first tests each row against the previous row of `order` (duplicate: same aircraft and ts, so
     the first of equal rows is kept), then on its own (on the ground; out of range, a null ground speed counting as
     0). The second sees only the rows the first kept: a repeated position is the previous kept row's position time
     again (NaN equals NaN, as in polars), or, where the row has no position time, its latitude and longitude again."""
-    out = np.empty(order.size, dtype=np.int64)
     n = 0
     last = -1  # the previous row that passed the first stage
+    before = -1  # the previous row of `order` (its slot may have been overwritten by then)
     for k in range(order.size):
         r = order[k]
-        if k > 0 and ac[r] == ac[order[k - 1]] and ts_us[r] == ts_us[order[k - 1]]:
+        prev, before = before, r
+        if prev >= 0 and ac[r] == ac[prev] and ts_us[r] == ts_us[prev]:
             reason[r] = DUPLICATE_ROW
             continue
         if onground[r]:
@@ -51,16 +54,16 @@ def point_rules(order, ac, ts_us, lat, lon, alt_m, onground, groundspeed_mps, po
             if repeated:
                 reason[r] = REPEATED_POSITION
                 continue
-        out[n] = r
+        order[n] = r
         n += 1
-    return out[:n]
+    return order[:n]
 
 
 @jit
 def speed_spikes(rows, ac, ts_us, lat, lon, alt_m, max_speed_mps, max_climb_mps, earth_radius_m, reason):
-    """Rows `rows` (in (aircraft, ts) order) -> those that pass, in that order; writes SPEED_SPIKE into reason[row] of
-    an isolated point the aircraft could not have reached and left again: both legs (from the previous and to the
-    next row of the same aircraft) too fast, or both too steep.
+    """Rows `rows` (in (aircraft, ts) order) -> those that pass, in that order, moved to the head of `rows` (returned
+    as a view of it); writes SPEED_SPIKE into reason[row] of an isolated point the aircraft could not have reached and
+    left again: both legs (from the previous and to the next row of the same aircraft) too fast, or both too steep.
 
     A leg's time has a 1 s floor: OpenSky timestamps are whole seconds, a 0 s step would make every move "infinite".
     Climb is compared as a rate (`> c * dt` rounds otherwise at the limit). A cheap bound clears nearly every leg: with
@@ -68,8 +71,7 @@ def speed_spikes(rows, ac, ts_us, lat, lon, alt_m, max_speed_mps, max_climb_mps,
     under it is possible; the few others get the equirectangular distance (within 0.5 % of great-circle under
     500 km) with its trigonometry."""
     n = rows.size
-    fast = np.zeros(n, dtype=np.bool_)  # fast[i], steep[i]: the leg from row i - 1 to row i
-    steep = np.zeros(n, dtype=np.bool_)
+    leg = np.zeros(n, dtype=np.uint8)  # of the leg from row i - 1 to row i: FAST | STEEP bits
     reach_deg_per_s = np.degrees(max_speed_mps / earth_radius_m)
     x2_per_lat2 = (np.pi / 360) ** 2  # (mean latitude in radians)² per (lat1 + lat2)²
     for i in range(1, n):
@@ -77,7 +79,8 @@ def speed_spikes(rows, ac, ts_us, lat, lon, alt_m, max_speed_mps, max_climb_mps,
         if ac[a] != ac[b]:
             continue
         dt = max((ts_us[b] - ts_us[a]) / 1e6, 1.0)
-        steep[i] = np.abs(alt_m[b] - alt_m[a]) / dt > max_climb_mps
+        if np.abs(alt_m[b] - alt_m[a]) / dt > max_climb_mps:
+            leg[i] = STEEP
         dlon = np.abs(lon[b] - lon[a])
         dlon = min(dlon, 360.0 - dlon)  # the shorter way round
         x2 = (lat[b] + lat[a]) ** 2 * x2_per_lat2
@@ -85,16 +88,16 @@ def speed_spikes(rows, ac, ts_us, lat, lon, alt_m, max_speed_mps, max_climb_mps,
         reach_deg = dt * reach_deg_per_s
         if (lat[b] - lat[a]) ** 2 + dlon**2 > reach_deg**2 * (1 - 1e-9):
             dx = np.radians((lon[b] - lon[a] + 180.0) % 360.0 - 180.0) * np.cos(np.radians((lat[a] + lat[b]) / 2))
-            fast[i] = earth_radius_m * np.sqrt(np.radians(lat[b] - lat[a]) ** 2 + dx**2) / dt > max_speed_mps
-    out = np.empty(n, dtype=np.int64)
+            if earth_radius_m * np.sqrt(np.radians(lat[b] - lat[a]) ** 2 + dx**2) / dt > max_speed_mps:
+                leg[i] |= FAST
     m = 0
-    for i in range(n):
-        if 0 < i < n - 1 and ((fast[i] and fast[i + 1]) or (steep[i] and steep[i + 1])):
+    for i in range(n):  # slot m <= i: rows[i] is read before it can be overwritten
+        if 0 < i < n - 1 and leg[i] & leg[i + 1]:  # the same bit in and out: both too fast or both too steep
             reason[rows[i]] = SPEED_SPIKE
         else:
-            out[m] = rows[i]
+            rows[m] = rows[i]
             m += 1
-    return out[:m]
+    return rows[:m]
 
 
 @jit

@@ -17,7 +17,7 @@ def _spikes(rows: pl.DataFrame, max_speed: float, max_climb: float) -> np.ndarra
     ac, ts = rows["_ac"].to_numpy(), rows["ts"].dt.epoch("us").to_numpy()
     lat, lon, alt = (rows[c].to_numpy() for c in ("lat", "lon", "alt_m"))
     reason = np.zeros(rows.height, dtype=np.uint8)
-    kept = kernels.speed_spikes(np.arange(rows.height), ac, ts, lat, lon, alt, max_speed, max_climb, EARTH_RADIUS_M, reason)
+    kept = kernels.speed_spikes(np.arange(rows.height), ac, ts, lat, lon, alt, max_speed, max_climb, EARTH_RADIUS_M, reason).copy()
     spike = reason == kernels.SPEED_SPIKE
     np.testing.assert_array_equal(kept, np.flatnonzero(~spike))
     return spike

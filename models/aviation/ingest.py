@@ -335,19 +335,12 @@ def _runs(first: np.ndarray, length: np.ndarray) -> np.ndarray:
     return np.repeat(first - (np.cumsum(length) - length), length) + np.arange(length.sum())
 
 
-def clean(raw: pl.DataFrame, source: str, cfg: IngestConfig = IngestConfig()) -> tuple[pl.DataFrame, pl.DataFrame]:
-    """Normalised rows (`normalise`'s output: row_index is the row's position) -> (cleaned points with
-    flight_id, rejects with reason). Every row ends in one.
-
-    Rules, each rejected row getting the first reason that hits it (models/aviation/kernels.py): a missing time,
-    aircraft or position; then, on the rows sorted by (aircraft, ts, row), a duplicate, a point on the ground or out
-    of range; of the rows left, a repeated (stale) position; of those, a speed or climb spike; last, a flight (split
-    at a long gap or a callsign change) of fewer than min_points rows. The rules read numpy arrays of the raw rows
-    and write each rejected row's reason into one array; the tracks and the rejects are then gathered from the raw
-    rows once each, in their final order."""
-    reason = np.zeros(raw.height, dtype=np.uint8)  # per raw row: 0 kept, else its code (kernels.REASONS)
-    # the kernels' inputs: numbers in one select (polars runs it in parallel), nulls made values no rule reads or NaN;
-    # flags from their true positions (polars turns a Boolean column into numpy bit by bit, ~4x slower)
+def _rule_rows(raw: pl.DataFrame, cfg: IngestConfig, reason: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The row rules (models/aviation/kernels.py) on the normalised rows: writes each rejected row's code into
+    reason[row]; returns (the rows kept, in (aircraft, ts, row) order; whether each starts a flight; the row whose
+    callsign it takes, -1: none). The kernels' inputs live only here: freed before the tracks are gathered."""
+    # numbers in one select (polars runs it in parallel), nulls made values no rule reads or NaN; flags from their true
+    # positions (polars turns a Boolean column into numpy bit by bit, ~4x slower)
     c = {
         col.name: col.to_numpy()
         for col in raw.select(
@@ -376,7 +369,20 @@ def clean(raw: pl.DataFrame, source: str, cfg: IngestConfig = IngestConfig()) ->
         cfg.min_alt_m, cfg.max_alt_m, cfg.max_speed_mps, reason,
     )
     row = kernels.speed_spikes(kept, c["ac"], c["ts"], c["lat"], c["lon"], c["alt_m"], cfg.max_speed_mps, cfg.max_climb_mps, EARTH_RADIUS_M, reason)
-    new, callsign_row = kernels.flight_starts(row, c["ac"], c["ts"], c["cs"], cfg.gap_split_s)
+    return row, *kernels.flight_starts(row, c["ac"], c["ts"], c["cs"], cfg.gap_split_s)
+
+
+def clean(raw: pl.DataFrame, source: str, cfg: IngestConfig = IngestConfig()) -> tuple[pl.DataFrame, pl.DataFrame]:
+    """Normalised rows (`normalise`'s output: row_index is the row's position) -> (cleaned points with
+    flight_id, rejects with reason). Every row ends in one.
+
+    Rules, each rejected row getting the first reason that hits it: a missing time, aircraft or position; then, on
+    the rows sorted by (aircraft, ts, row), a duplicate, a point on the ground or out of range; of the rows left, a
+    repeated (stale) position; of those, a speed or climb spike (`_rule_rows`); last, a flight (split at a long gap
+    or a callsign change) of fewer than min_points rows. Each rejected row's reason goes into one array; the tracks
+    and the rejects are then gathered from the raw rows once each, in their final order."""
+    reason = np.zeros(raw.height, dtype=np.uint8)  # per raw row: 0 kept, else its code (kernels.REASONS)
+    row, new, callsign_row = _rule_rows(raw, cfg, reason)
     flights = _split_flights(raw, row, new, callsign_row)
     # rows are in (aircraft, ts) order and a flight_id names one aircraft, so the flights (contiguous runs of
     # rows) put in the order of their names, stably, give (flight_id, ts) order: one gather of whole runs

@@ -88,11 +88,7 @@ def resample(tracks: pl.DataFrame, dt_s: float = 20.0) -> pl.DataFrame:
             out[gap] = np.nan
         return out
 
-    def col(c: str) -> np.ndarray:
-        """A column as float64 with NaN for null; the column itself (no copy) when it is that already."""
-        s = src[c]
-        return s.to_numpy() if s.dtype == pl.Float64 and not s.null_count() else s.cast(pl.Float64).fill_null(np.nan).to_numpy()
-
+    col = lambda c: src[c].cast(pl.Float64).fill_null(np.nan).to_numpy()  # noqa: E731
     out = pl.DataFrame(
         {
             "flight_id": ids.gather(owner).set_sorted(),  # in order: flagged, so that checks downstream are free

@@ -1,5 +1,5 @@
 """numba's njit with its on-disk cache where it can have one: the one decorator of the compiled kernels
-(models/dcb/kernels.py, models/urban/kernels.py)."""
+(models/aviation/kernels.py, models/dcb/kernels.py, models/urban/kernels.py)."""
 
 from numba import njit
 

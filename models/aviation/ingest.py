@@ -306,7 +306,7 @@ def _aircraft_time_order(ac: np.ndarray, ts: np.ndarray, missing: np.ndarray) ->
     if int(ac.max()).bit_length() + bits <= 62:  # both in one int64 key: one sort
         key = ac.astype(np.int64)
         key <<= bits
-        key += ts - lo  # in place where it can be: a 4 MB temporary costs about what the arithmetic does
+        key += ts - lo  # in place where it can be: a temporary of the key's size costs about what the arithmetic does
         key[missing] = np.iinfo(np.int64).max
         return np.argsort(key, kind="stable")[:n_ok]
     among = np.flatnonzero(ok)
@@ -319,9 +319,8 @@ def _split_flights(raw: pl.DataFrame, row: np.ndarray, new: np.ndarray, callsign
     callsign_icao24_YYYYMMDDTHHMM from its first point (its callsign: that of callsign_row, -1: none, the icao24
     then), flight_rank = rank of the name, points. Names are built once per flight."""
     first = np.flatnonzero(new)
-    named = callsign_row[first]
-    firsts = pl.DataFrame({"icao24": raw["icao24"].gather(row[first]), "ts": raw["ts"].gather(row[first])}).with_columns(
-        callsign=raw["callsign"].gather(np.maximum(named, 0)).set(pl.Series(named < 0), None)
+    firsts = pl.DataFrame(
+        {"callsign": _callsigns(raw, callsign_row[first]), "icao24": raw["icao24"].gather(row[first]), "ts": raw["ts"].gather(row[first])}
     )
     flights = firsts.select(
         flight_id=pl.concat_str(pl.col("callsign").fill_null(pl.col("icao24")), "icao24", pl.col("ts").dt.strftime("%Y%m%dT%H%M"), separator="_"),
@@ -329,6 +328,12 @@ def _split_flights(raw: pl.DataFrame, row: np.ndarray, new: np.ndarray, callsign
     )
     # the rank of the name orders the flights by (flight_id, ts) comparing integers instead of strings
     return flights.with_columns(flight_rank=pl.col("flight_id").rank("dense"))
+
+
+def _callsigns(raw: pl.DataFrame, rows: np.ndarray) -> pl.Series:
+    """The callsigns of the raw rows `rows`, null where the row is -1 (an aircraft before its first callsign)."""
+    names = raw["callsign"].gather(np.maximum(rows, 0))
+    return names.set(pl.Series(rows < 0), None) if (rows < 0).any() else names
 
 
 def _runs(first: np.ndarray, length: np.ndarray) -> np.ndarray:
@@ -396,11 +401,8 @@ def clean(raw: pl.DataFrame, source: str, cfg: IngestConfig = IngestConfig()) ->
     order = order[np.argsort(flights["flight_rank"].to_numpy()[order], kind="stable")]
     final = _runs(first[order], points[order])
     tracks = raw.select("ts", "icao24", "lat", "lon", "alt_m", "groundspeed_mps", "track_deg", "vertical_rate_mps")[row[final]]
-    named = callsign_row[final]
-    callsign = raw["callsign"].gather(np.maximum(named, 0))
-    if (named < 0).any():  # a flight without a callsign keeps its icao24 as one: downstream keys are never null
-        callsign = callsign.set(pl.Series(named < 0), None)
-    if callsign.null_count():
+    callsign = _callsigns(raw, callsign_row[final])
+    if callsign.null_count():  # a flight without a callsign keeps its icao24 as one: downstream keys are never null
         callsign = callsign.fill_null(tracks["icao24"])
     flight_id = flights["flight_id"].gather(np.repeat(order, points[order])).set_sorted()  # flagged: checks downstream are free
     tracks = tracks.with_columns(flight_id=flight_id, callsign=callsign).select(

@@ -1,8 +1,8 @@
-"""The ingest's row rules and flight split as numba kernels: one pass over the rows in (aircraft, ts) order where the
-polars rules made a dozen passes and collects per stage (issue 2: the chain on the bundled file >= 20x `traffic`).
+"""The ingest's row rules and flight split as numba kernels: one pass each over the rows in (aircraft, ts) order where
+the polars rules made ~70 collects (issue 2: the chain on the bundled file >= 20x `traffic`).
 
 Results are those of the polars/numpy rules they replaced, bit for bit: the same comparisons and the same float
-operations in the same order (tests/aviation/test_ingest_fast_paths.py). numba caches the machine code beside this
+operations in the same order (tests/aviation/test_ingest_kernels.py, test_ingest_fast_paths.py). numba caches the machine code beside this
 file; a kernel's cache is invalidated only by a change of this file, so it imports nothing from the project and
 takes the constants it uses as arguments (models/jit.py).
 """

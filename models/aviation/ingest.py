@@ -24,6 +24,9 @@ from models.units import M_PER_FT, MPS_PER_FPM, MPS_PER_KT
 
 UNIT_SAMPLE_ROWS = 50_000
 TS_DTYPE = pl.Datetime("us", "UTC")
+# a time outside these years is a decoding error; rejected before the sort, it cannot overflow the kernels' time
+# differences nor a flight name's date (polars panics on a year past 262,143)
+TS_RANGE_US = (0, 4_102_444_800_000_000)  # 1970-01-01 to 2100-01-01
 
 
 class IngestError(ValueError):
@@ -367,9 +370,11 @@ def _rule_rows(raw: pl.DataFrame, cfg: IngestConfig, reason: np.ndarray) -> tupl
     missing = flag(pl.any_horizontal(pl.col("ts", "_ac", "lat", "lon", "alt_m").is_null()), True)
     onground = flag(pl.col("onground").fill_null(False), True)
     has_pos = flag(pl.col("pos_time").is_null(), False)
-    # the first rule looks at each row alone, so it runs before the sort, which then orders only the rows left
+    # the first rules look at each row alone, so they run before the sort, which then orders only the rows left
     reason[missing] = kernels.MISSING_VALUE
-    order = _aircraft_time_order(c["ac"], c["ts"], missing)
+    bad_time = ~missing & ((c["ts"] < TS_RANGE_US[0]) | (c["ts"] >= TS_RANGE_US[1]))
+    reason[bad_time] = kernels.OUT_OF_RANGE
+    order = _aircraft_time_order(c["ac"], c["ts"], missing | bad_time)
     kept = kernels.point_rules(
         order, c["ac"], c["ts"], c["lat"], c["lon"], c["alt_m"], onground, c["groundspeed_mps"], c["pos"], has_pos,
         cfg.min_alt_m, cfg.max_alt_m, cfg.max_speed_mps, reason,
@@ -382,9 +387,9 @@ def clean(raw: pl.DataFrame, source: str, cfg: IngestConfig = IngestConfig()) ->
     """Normalised rows (`normalise`'s output: row_index is the row's position) -> (cleaned points with
     flight_id, rejects with reason). Every row ends in one.
 
-    Rules, each rejected row getting the first reason that hits it: a missing time, aircraft or position; then, on
-    the rows sorted by (aircraft, ts, row), a duplicate, a point on the ground or out of range; of the rows left, a
-    repeated (stale) position; of those, a speed or climb spike (`_rule_rows`); last, a flight (split at a long gap
+    Rules, each rejected row getting the first reason that hits it: a missing time, aircraft or position; a time
+    outside 1970-2100 (out of range); then, on the rows sorted by (aircraft, ts, row), a duplicate, a point on the
+    ground or out of range; of the rows left, a repeated (stale) position; of those, a speed or climb spike (`_rule_rows`); last, a flight (split at a long gap
     or a callsign change) of fewer than min_points rows. Each rejected row's reason goes into one array; the tracks
     and the rejects are then gathered from the raw rows once each, in their final order."""
     reason = np.zeros(raw.height, dtype=np.uint8)  # per raw row: 0 kept, else its code (kernels.REASONS)

@@ -151,6 +151,21 @@ def test_traffic_feet_cut_to_low_levels_is_kept(tmp_path, small_raw):
     assert tracks.height > 0 and tracks["alt_m"].max() == pytest.approx(15_000 * M_PER_FT)
 
 
+def test_times_outside_1970_2100_are_quarantined(small_raw, tmp_path):
+    """A decoded time in the year 292,277 or before 1970 is out of range: quarantined, not sorted into a flight (before,
+    a flight name's date made polars panic, and differences of such times overflowed)."""
+    us = small_raw["time"].dt.epoch("us")
+    far = pl.Series([2**63 - 10, -(2**62), -1, 4_102_444_800_000_000])  # year 292,277; 146,000 BC; 1969; 2100-01-01
+    bad = small_raw.with_columns(
+        time=pl.concat([far, us.slice(len(far))]).cast(pl.Datetime("us", "UTC"))
+    )
+    tracks, rejects, summary = ingest(_write(bad, tmp_path / "far.parquet"))
+    assert tracks.height + rejects.height == bad.height
+    assert set(rejects.filter(pl.col("row_index") < len(far))["reason"]) == {"out_of_range"}
+    assert tracks["ts"].dt.year().is_between(1970, 2099).all()
+    assert tracks["flight_id"].n_unique() == ingest(_write(small_raw, tmp_path / "clean.parquet"))[0]["flight_id"].n_unique()
+
+
 def test_spikes_and_ground_points_rejected(tmp_path, small_raw):
     df = small_raw.with_row_index("i")
     spike_rows = df.filter(pl.col("lastposupdate").is_not_null()).gather_every(5003)["i"]

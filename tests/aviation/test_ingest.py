@@ -207,6 +207,35 @@ def test_callsigns_fill_split_and_fallback(tmp_path, small_raw):
     assert anon_tracks["flight_id"].n_unique() == clean_ids.len()
 
 
+def _state_vectors(icao24: list, callsign: list, lastposupdate: list) -> pl.DataFrame:
+    """OpenSky rows a second apart, each 0.001° further north (a plausible track: no rule but the one under test hits)."""
+    n = len(icao24)
+    return pl.DataFrame({
+        "time": pl.Series(1_650_000_000 + np.arange(n), dtype=pl.Int64), "icao24": icao24, "callsign": pl.Series(callsign, dtype=pl.String),
+        "lat": 54.0 + 0.001 * np.arange(n), "lon": np.full(n, 20.0), "baroaltitude": np.full(n, 10_000.0),
+        "lastposupdate": pl.Series(lastposupdate, dtype=pl.Float64),
+    })
+
+
+def test_an_aircraft_without_a_callsign_is_named_by_its_own_icao24(tmp_path):
+    """The file's first row has a callsign (AFL1) and another aircraft never sends one: that one's flight is named and
+    labelled by its icao24, not by another row's callsign."""
+    rows = _state_vectors(["aaa111"] * 3 + ["bbb222"] * 3, ["AFL1"] * 3 + [None] * 3, [None] * 6)
+    tracks = ingest(_write(rows, tmp_path / "two.parquet"), IngestConfig(min_points=1))[0]
+    anon = tracks.filter(pl.col("icao24") == "bbb222")
+    assert anon["callsign"].to_list() == ["bbb222"] * 3
+    assert anon["flight_id"].str.starts_with("bbb222_bbb222_").all()
+
+
+def test_a_position_time_of_zero_after_none_is_a_new_position(tmp_path):
+    """A row with no position time, then one whose lastposupdate is 0 (1970-01-01: a field never set) at a new place:
+    the second is kept. The kernel reads a missing position time as 0.0 beside a has-position flag, so a repeat must
+    need a position time on both rows."""
+    rows = _state_vectors(["aaa111"] * 2, ["AFL1"] * 2, [None, 0.0])
+    tracks, rejects, _ = ingest(_write(rows, tmp_path / "zero.parquet"), IngestConfig(min_points=1))
+    assert tracks.height == 2 and rejects.height == 0
+
+
 def test_aircraft_ids_that_parse_alike_stay_apart(tmp_path, small_raw):
     """'+abcde' and '0abcde' are the same hex number but two aircraft (here flying the same track at the same
     time: merged, one would be all duplicates); a blank icao24 is a missing one."""

@@ -78,6 +78,25 @@ def test_climb_limit_is_a_rate_as_in_the_plain_rule():
     np.testing.assert_array_equal(_spikes(rows, 350.0, 100.0), _spike_oracle(rows, 350.0, 100.0))
 
 
+def test_speed_spike_bound_keeps_its_slack_for_the_exact_rule_rounding():
+    """Legs due east along the equator (Amazon, Congo, Borneo) at the speed limit to within 2e-11 of it: the cheap bound
+    takes |Δlon| as it is, the exact rule wraps Δlon through ±180° (rounding to 180's ulp, ~1e-11 of a 1 s leg), so
+    without the bound's (1 - 1e-9) slack legs the exact rule calls too fast would be cleared (found by a search in
+    review). Each aircraft: the leg under test, then 5° north in a second (far too fast): its middle row is a spike
+    exactly when the leg under test is too fast."""
+    reach = np.degrees(350.0 / EARTH_RADIUS_M)  # degrees of longitude in 1 s at the limit, on the equator
+    lon1 = np.repeat([-60.0, 20.0, 113.0], 41)
+    lon2 = lon1 + reach * (1 + np.tile(np.linspace(-2e-11, 2e-11, 41), 3))
+    n = lon1.size
+    rows = pl.DataFrame({
+        "_ac": np.repeat(np.arange(n, dtype=np.uint32), 3), "ts": pl.Series(np.tile([0, 1, 2], n) * 1_000_000).cast(pl.Datetime("us", "UTC")),
+        "lat": np.tile([0.0, 0.0, 5.0], n), "lon": np.stack([lon1, lon2, lon2], 1).ravel(), "alt_m": np.full(3 * n, 10_000.0),
+    })
+    want = _spike_oracle(rows, 350.0, 100.0)
+    assert (want[1::3] & (lon2 - lon1 <= reach)).any(), "the case must hold legs too fast for the exact rule within |Δlon| of the reach"
+    np.testing.assert_array_equal(_spikes(rows, 350.0, 100.0), want)
+
+
 def test_flights_table_when_the_first_flight_has_no_airport(opensky_small):
     """No airport near the first flight's ends (Southern Ocean, cruise altitude) and airports for the others: one row
     per flight, the first one's origin and destination UNKNOWN (polars cannot cast such an object array to String)."""
@@ -107,6 +126,20 @@ def test_aircraft_time_order_one_key_and_fallback_equal_a_full_sort():
         ts = np.where(missing, np.iinfo(np.int64).min, rows["ts"].to_numpy())
         want = rows.filter(~missing).sort("_ac", "ts", "row_index")["row_index"].to_numpy()
         np.testing.assert_array_equal(_aircraft_time_order(rows["_ac"].to_numpy(), ts, missing), want)
+
+
+def test_aircraft_time_order_at_the_edge_of_the_one_key_budget():
+    """Aircraft codes of 11 to 14 bits beside a 51-bit time span (a day of worldwide data has ~8,000 aircraft, 13 bits;
+    one time at 1970-01-01 among 2022's gives 51 bits): from 64 bits together one int64 key overflows (the highest
+    codes wrap below the others), at 63 the largest key equals the missing rows' sentinel (a missing row would take a
+    kept row's place). Row 0 is missing; rows 1 and 3 are the highest aircraft code, row 1 at the end of the span."""
+    span = 2**51 - 1  # µs: 1970-01-01 to 2041-05-06
+    for ac_bits in (11, 12, 13, 14):
+        top = 2**ac_bits - 1
+        ac = np.array([0, top, 0, top, 1], dtype=np.uint32)
+        ts = np.array([0, span, 0, 1, 5], dtype=np.int64)
+        missing = np.array([True, False, False, False, False])
+        np.testing.assert_array_equal(_aircraft_time_order(ac, ts, missing), [2, 4, 3, 1], err_msg=f"{ac_bits} bits")
 
 
 def test_name_codes_sort_like_the_tidy_names_in_runs_or_not():

@@ -370,6 +370,10 @@ def _rule_rows(raw: pl.DataFrame, cfg: IngestConfig, reason: np.ndarray) -> tupl
     missing = flag(pl.any_horizontal(pl.col("ts", "_ac", "lat", "lon", "alt_m").is_null()), True)
     onground = flag(pl.col("onground").fill_null(False), True)
     has_pos = flag(pl.col("pos_time").is_null(), False)
+    # read-only whether polars lent a column's memory (one chunk) or copied it (several: a Parquet file of many row
+    # groups, a CSV read in parallel): numba compiles a kernel once per argument type, read-only or not included
+    for a in (*c.values(), onground, has_pos):
+        a.setflags(write=False)
     # the first rules look at each row alone, so they run before the sort, which then orders only the rows left
     reason[missing] = kernels.MISSING_VALUE
     bad_time = ~missing & ((c["ts"] < TS_RANGE_US[0]) | (c["ts"] >= TS_RANGE_US[1]))

@@ -1,13 +1,14 @@
 """The ingest's fast paths give exactly what the plain computation gives: the spike kernel's cheap bound,
 the one-key (aircraft, ts) sort and its fallback, name codes from runs, and the flights table's end points."""
 
+import numba
 import numpy as np
 import polars as pl
 
 from models.aviation.airports import flights_table
 from models.aviation.order import in_flight_order
 from models.aviation import kernels
-from models.aviation.ingest import _aircraft_time_order, _tidy_names, ingest
+from models.aviation.ingest import _aircraft_time_order, _tidy_names, clean, ingest, normalise
 from models.aviation.resample import EARTH_RADIUS_M
 
 
@@ -140,6 +141,19 @@ def test_aircraft_time_order_at_the_edge_of_the_one_key_budget():
         ts = np.array([0, span, 0, 1, 5], dtype=np.int64)
         missing = np.array([True, False, False, False, False])
         np.testing.assert_array_equal(_aircraft_time_order(ac, ts, missing), [2, 4, 3, 1], err_msg=f"{ac_bits} bits")
+
+
+def test_kernels_get_the_same_types_from_one_chunk_or_several(monkeypatch, opensky_small):
+    """A file read in several chunks (many Parquet row groups, a CSV read in parallel) hands numpy copies, one in one
+    chunk polars' read-only memory: the kernels must see the same types, or numba compiles them again (~4 s)."""
+    seen = []
+    for name in ("point_rules", "speed_spikes", "flight_starts"):
+        kernel = getattr(kernels, name)
+        monkeypatch.setattr(kernels, name, lambda *a, _k=kernel: seen.append(tuple(map(numba.typeof, a))) or _k(*a))
+    df = pl.read_parquet(opensky_small)
+    for frame in (df, pl.concat([df[:1000], df[1000:]], rechunk=False)):
+        clean(normalise(frame, "x"), "x")
+    assert seen[:3] == seen[3:]
 
 
 def test_name_codes_sort_like_the_tidy_names_in_runs_or_not():

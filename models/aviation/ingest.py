@@ -306,7 +306,7 @@ def _aircraft_time_order(ac: np.ndarray, ts: np.ndarray, missing: np.ndarray) ->
         return np.zeros(0, dtype=np.int64)
     lo = int(ts.min(where=ok, initial=np.iinfo(np.int64).max))
     bits = (int(ts.max(where=ok, initial=np.iinfo(np.int64).min)) - lo).bit_length()
-    if int(ac.max()).bit_length() + bits <= 62:  # both in one int64 key: one sort
+    if int(ac.max()).bit_length() + bits <= 62:  # both in one int64 key, below the missing rows' int64 max: one sort
         key = ac.astype(np.int64)
         key <<= bits
         key += ts - lo  # in place where it can be: a temporary of the key's size costs about what the arithmetic does
@@ -348,8 +348,9 @@ def _rule_rows(raw: pl.DataFrame, cfg: IngestConfig, reason: np.ndarray) -> tupl
     """The row rules (models/aviation/kernels.py) on the normalised rows: writes each rejected row's code into
     reason[row]; returns (the rows kept, in (aircraft, ts, row) order; whether each starts a flight; the row whose
     callsign it takes, -1: none). The kernels' inputs live only here: freed before the tracks are gathered."""
-    # numbers in one select (polars runs it in parallel), nulls made values no rule reads or NaN; flags from their true
-    # positions (polars turns a Boolean column into numpy bit by bit, ~4x slower)
+    # numbers in one select (polars runs it in parallel), nulls made values no rule reads (a missing row's, a position
+    # time where has_pos is false) or that mean what the rules say (a null ground speed is 0, a null callsign -1); flags
+    # from their true positions (polars turns a Boolean column into numpy bit by bit, ~4x slower)
     c = {
         col.name: col.to_numpy()
         for col in raw.select(
@@ -393,9 +394,10 @@ def clean(raw: pl.DataFrame, source: str, cfg: IngestConfig = IngestConfig()) ->
 
     Rules, each rejected row getting the first reason that hits it: a missing time, aircraft or position; a time
     outside 1970-2100 (out of range); then, on the rows sorted by (aircraft, ts, row), a duplicate, a point on the
-    ground or out of range; of the rows left, a repeated (stale) position; of those, a speed or climb spike (`_rule_rows`); last, a flight (split at a long gap
-    or a callsign change) of fewer than min_points rows. Each rejected row's reason goes into one array; the tracks
-    and the rejects are then gathered from the raw rows once each, in their final order."""
+    ground or out of range; of the rows left, a repeated (stale) position; of those, a speed or climb spike
+    (`_rule_rows`); last, a flight (split at a long gap or a callsign change) of fewer than min_points rows. Each
+    rejected row's reason goes into one array; the tracks and the rejects are then gathered from the raw rows once
+    each, in their final order."""
     reason = np.zeros(raw.height, dtype=np.uint8)  # per raw row: 0 kept, else its code (kernels.REASONS)
     row, new, callsign_row = _rule_rows(raw, cfg, reason)
     flights = _split_flights(raw, row, new, callsign_row)

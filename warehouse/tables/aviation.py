@@ -57,8 +57,8 @@ TABLES: list[Table] = [
                 "reason",
                 pa.string(),
                 "",
-                "missing_value, duplicate_row, repeated_position, on_ground, out_of_range, "
-                "speed_spike or short_segment",
+                "missing_value, duplicate_row, repeated_position, on_ground, out_of_range (a position, altitude or ground "
+                "speed beyond the physical limits, or a time outside 1970–2100), speed_spike or short_segment",
             ),
             col("icao24", pa.string(), "", "as read", nullable=True),
             col("callsign", pa.string(), "", "as read", nullable=True),

@@ -1,5 +1,6 @@
 """Jobs in parallel processes: libsumo runs one simulation per process, and the small torch trainings
-run on one thread each, so on a 2-core machine two processes do twice the work of one.
+run on one thread each, so on a 2-core machine two processes do twice the work of one. And calls at once in
+threads (`together`), for work that releases the GIL (polars, numpy, nogil numba kernels).
 
 `ProcessPool(workers, fn)` is a callable `jobs -> results` (in order); `pool.iter(jobs)` yields them in
 order as they finish, for progress logs. workers = 1 runs in this process. Workers are spawned (not
@@ -10,12 +11,27 @@ seed its own randomness, so results do not depend on the number of workers.
 import multiprocessing
 import os
 from collections.abc import Iterator
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 
 
 def usable_cores() -> int:
     """Cores this process may run on (the default number of workers)."""
     return len(os.sched_getaffinity(0))
+
+
+_threads: ThreadPoolExecutor | None = None
+
+
+def together(*calls):
+    """Run the zero-argument `calls` at once, the last in this thread, the others in a pool of one thread per usable
+    core; returns their results in order (an exception of one is raised here). For pieces of one step that release
+    the GIL: on the flight ingest polars' own threads leave the second core idle."""
+    global _threads
+    if _threads is None:
+        _threads = ThreadPoolExecutor(usable_cores(), thread_name_prefix="together")
+    futures = [_threads.submit(call) for call in calls[:-1]]
+    last = calls[-1]()
+    return [f.result() for f in futures] + [last]
 
 
 def _init_worker():

@@ -2,14 +2,14 @@
 
 Between two received positions the aircraft is assumed to fly at constant speed, i.e. positions,
 altitude and rates are linear in time, angles (track, longitude) turn along the shorter arc. All flights
-are interpolated at once: each flight's times are offset by its index times a stride longer than any
-flight, which makes the concatenated time axis strictly increasing without letting one flight bleed into
-the next, and one binary search of the grid in that axis serves every column.
+are interpolated at once, each grid point's row found once (kernels.grid_rows) and every
+column interpolated from it (kernels.interpolate).
 """
 
 import numpy as np
 import polars as pl
 
+from models.aviation import kernels
 from models.aviation.order import in_flight_order, runs
 from models.units import EARTH_RADIUS_KM
 
@@ -17,14 +17,15 @@ EARTH_RADIUS_M = EARTH_RADIUS_KM * 1000.0
 US = 1_000_000
 
 
-def _grid(first_us: np.ndarray, last_us: np.ndarray, dt_us: int) -> tuple[np.ndarray, np.ndarray]:
-    """(flight index, grid time in µs) for all grid points of all flights, without a Python loop."""
+def _grid(first_us: np.ndarray, last_us: np.ndarray, dt_us: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(flight index, grid time in µs) of all grid points of all flights, and each flight's first grid point (one more
+    at the end: the count), without a Python loop."""
     start = -(-first_us // dt_us) * dt_us  # ceil to the step
     stop = last_us // dt_us * dt_us
     n = np.maximum((stop - start) // dt_us + 1, 0)
     owner = np.repeat(np.arange(len(n)), n)
     offset = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
-    return owner, start[owner] + offset * dt_us
+    return owner, start[owner] + offset * dt_us, np.r_[0, np.cumsum(n)]
 
 
 def resample(tracks: pl.DataFrame, dt_s: float = 20.0) -> pl.DataFrame:
@@ -35,57 +36,23 @@ def resample(tracks: pl.DataFrame, dt_s: float = 20.0) -> pl.DataFrame:
         raise ValueError(f"dt_s must be a positive step in seconds, got {dt_s:g}")
     src = in_flight_order(tracks)
     # flights are contiguous after the sort: run ids number them without hashing the string ids
-    idx, starts = runs(src["flight_id"])
+    _, starts = runs(src["flight_id"])
     t = src["ts"].dt.epoch("us").to_numpy()
     ids = src["flight_id"].gather(starts)
     first_us = t[starts]
     last_us = t[np.r_[starts[1:] - 1, len(t) - 1]] if len(t) else t
-    owner, grid_us = _grid(first_us, last_us, dt_us)
+    owner, grid_us, grid_first = _grid(first_us, last_us, dt_us)
+    ends = np.r_[starts[1:], len(t)]
+    for a in (t, starts, ends, grid_first, grid_us):  # one compiled signature whether polars lent memory or copied it
+        a.setflags(write=False)
+    row = kernels.grid_rows(t, starts, ends, grid_first, grid_us)
 
-    t0 = t.min() if len(t) else 0
-    stride = float((t.max() - t0) if len(t) else 0) + 10.0 * dt_us
-    key_src = idx * stride + (t - t0)
-    key_dst = owner * stride + (grid_us - t0)
-
-    # the grid's binary search over all rows; a column with gaps derives its own from it
-    j_all = np.clip(np.searchsorted(key_src, key_dst, side="right") - 1, 0, len(key_src) - 1)
-    searches: dict[bytes, tuple] = {}  # one search per distinct set of valid points, shared by columns
-
-    def search(ok: np.ndarray) -> tuple:
-        """(left, right source row, offset from left, left-to-right span, gap mask) of every grid point."""
-        everywhere = ok.all()
-        mask_key = b"" if everywhere else np.packbits(ok).tobytes()
-        if mask_key not in searches:
-            gap = None
-            if everywhere:
-                j, k = j_all, np.minimum(j_all + 1, len(key_src) - 1)
-            else:
-                # the search among the valid rows only: the last valid row up to the one the full search found (else
-                # the first valid row), and the valid row after it; looked up for the grid points, not the rows
-                pos = np.flatnonzero(ok)
-                at = np.clip(np.searchsorted(pos, j_all, side="right") - 1, 0, len(pos) - 1)
-                j, k = pos[at], pos[np.minimum(at + 1, len(pos) - 1)]
-                # outside a flight's first/last reported value there is nothing to interpolate from: leave a gap.
-                # Before the first: j is in an earlier flight or later than the point; after the last: j is earlier
-                # and the last valid row of its flight
-                gap = (idx[j] != owner) | (key_src[j] > key_dst) | ((key_dst > key_src[j]) & ((k == j) | (idx[k] != owner)))
-            searches[mask_key] = (j, k, key_dst - key_src[j], key_src[k] - key_src[j], gap)
-        return searches[mask_key]
-
-    def interp(values: np.ndarray, turn: float | None = None) -> np.ndarray:
-        """np.interp over each flight's valid values (bit-identical: its slope-times-offset arithmetic and the
-        left value on an exact hit); with `turn` (360) an angle, interpolated along the shorter arc (not wrapped)."""
-        ok = ~np.isnan(values)
-        if not ok.any():
-            return np.full(len(key_dst), np.nan)
-        j, k, dx, h, gap = search(ok)
-        rise = values[k] - values[j]
-        if turn is not None:
-            rise = (rise + turn / 2) % turn - turn / 2
-        with np.errstate(invalid="ignore", divide="ignore"):
-            out = np.where(dx == 0, values[j], rise / h * dx + values[j])
-        if gap is not None:
-            out[gap] = np.nan
+    def interp(values: np.ndarray, turn: float = 0.0) -> np.ndarray:
+        """np.interp over each flight's valid values, gaps outside them (kernels.interpolate); with `turn` (360) an
+        angle, interpolated along the shorter arc (not wrapped)."""
+        out = np.empty(len(grid_us))
+        values.setflags(write=False)
+        kernels.interpolate(t, starts, ends, grid_first, grid_us, row, values, turn, out)
         return out
 
     col = lambda c: src[c].cast(pl.Float64).fill_null(np.nan).to_numpy()  # noqa: E731

@@ -1,14 +1,18 @@
 """The ingest's fast paths give exactly what the plain computation gives: the spike kernel's cheap bound,
-the one-key (aircraft, ts) sort and its fallback, name codes from runs, and the flights table's end points."""
+the one-key (aircraft, ts) sort and its fallback, name codes from runs, the flights table's end points, the Parquet
+file read in two halves at once, and the compiled interpolation of the 20 s grid."""
 
 import numba
+import pytest
 import numpy as np
 import polars as pl
 
 from models.aviation.airports import flights_table
 from models.aviation.order import in_flight_order
 from models.aviation import kernels
-from models.aviation.ingest import _aircraft_time_order, _tidy_names, clean, ingest, normalise
+from models.aviation.ingest import _aircraft_time_order, _tidy_names, _used_columns, clean, ingest, normalise, read_source
+from models.aviation.resample import resample
+from models.parallel import together
 from models.aviation.resample import EARTH_RADIUS_M
 
 
@@ -203,3 +207,39 @@ def test_in_flight_order_sorts_exactly_when_needed():
     ):
         assert in_flight_order(broken).equals(broken.sort("flight_id", "ts"))
         assert in_flight_order(broken) is not broken
+
+
+def test_parquet_read_in_two_halves_equals_one_read(tmp_path, opensky_small):
+    """The used columns, in file order, whatever the row groups, with columns ingest does not use (a nested one too:
+    OpenSky exports carry a list of serials) left out; a file of one used column reads too."""
+    df = pl.read_parquet(opensky_small).with_columns(serials=pl.concat_list(pl.lit(1), pl.lit(2)), squawk=pl.lit("7000"))
+    path = tmp_path / "many_groups.parquet"
+    df.write_parquet(path, row_group_size=5_000)
+    want = pl.read_parquet(path, columns=_used_columns(df.columns))
+    assert read_source(path).equals(want)
+    only = tmp_path / "one.parquet"
+    df.select("lat").write_parquet(only)
+    assert read_source(only).equals(df.select("lat"))
+
+
+def test_together_returns_results_in_order_and_raises_a_callee_error():
+    assert together(lambda: 1, lambda: 2, lambda: 3) == [1, 2, 3]
+
+    def fails():
+        raise ValueError("from a thread")
+
+    with pytest.raises(ValueError, match="from a thread"):
+        together(fails, lambda: 2)
+
+
+def test_interpolation_kernel_gets_the_same_types_from_one_chunk_or_several(monkeypatch, opensky_small):
+    """As for the ingest kernels: tracks in one chunk or several must not compile the kernels a second time."""
+    seen = []
+    for name in ("grid_rows", "interpolate"):
+        kernel = getattr(kernels, name)
+        monkeypatch.setattr(kernels, name, lambda *a, _k=kernel: seen.append(tuple(map(numba.typeof, a))) or _k(*a))
+    tracks, _, _ = ingest(opensky_small)
+    half = tracks.height // 2
+    for frame in (tracks, pl.concat([tracks[:half], tracks[half:]], rechunk=False)):
+        resample(frame)
+    assert seen[: len(seen) // 2] == seen[len(seen) // 2 :]

@@ -19,6 +19,60 @@ FAST, STEEP = 1, 2  # a leg's bits in `speed_spikes`
 
 
 @jit
+def aircraft_time_order(ac, ts_us, skip):
+    """Positions of the rows not `skip`, in (aircraft, ts, row) order. A counting sort by aircraft code (stable: rows
+    stay in file order), then a stable sort by time of each aircraft whose rows are not already in time order: state
+    vectors come in runs of one aircraft in time order, so most aircraft need none (the bundled file: 6 of 49)."""
+    n_aircraft = 0
+    for r in range(ac.size):
+        if not skip[r]:
+            n_aircraft = max(n_aircraft, ac[r] + 1)
+    first = np.zeros(n_aircraft + 1, dtype=np.int64)  # first[a]: aircraft a's first slot
+    for r in range(ac.size):
+        if not skip[r]:
+            first[ac[r] + 1] += 1
+    first = np.cumsum(first)
+    slot = first[:-1].copy()
+    order = np.empty(first[-1], dtype=np.int64)
+    for r in range(ac.size):
+        if not skip[r]:
+            order[slot[ac[r]]] = r
+            slot[ac[r]] += 1
+    for a in range(n_aircraft):
+        _merge_runs(order[first[a] : first[a + 1]], ts_us)
+    return order
+
+
+@jit
+def _merge_runs(rows, ts_us):
+    """Sort `rows` by ts_us[row] in place, stably, by merging its runs of non-decreasing times pairwise (none: no
+    work; a few file runs of one aircraft: a few linear passes)."""
+    ends = [k for k in range(1, rows.size) if ts_us[rows[k]] < ts_us[rows[k - 1]]]
+    if not ends:
+        return
+    ends.append(rows.size)
+    buf = np.empty_like(rows)
+    while len(ends) > 1:
+        merged = []
+        lo = 0
+        for i in range(0, len(ends), 2):
+            mid = ends[i]
+            hi = ends[i + 1] if i + 1 < len(ends) else mid
+            a, b = lo, mid
+            for k in range(lo, hi):  # the left run's row first on equal times: stable
+                if b >= hi or (a < mid and ts_us[rows[a]] <= ts_us[rows[b]]):
+                    buf[k] = rows[a]
+                    a += 1
+                else:
+                    buf[k] = rows[b]
+                    b += 1
+            merged.append(hi)
+            lo = hi
+        rows[:] = buf
+        ends = merged
+
+
+@jit
 def point_rules(order, ac, ts_us, lat, lon, alt_m, onground, groundspeed_mps, pos_us, has_pos, min_alt_m, max_alt_m,
                 max_speed_mps, reason):
     """Rows `order` (no missing value, in (aircraft, ts, row) order) -> the rows that pass, in that order, moved to the

@@ -10,7 +10,7 @@ import polars as pl
 from models.aviation.airports import flights_table
 from models.aviation.order import in_flight_order
 from models.aviation import kernels
-from models.aviation.ingest import _aircraft_time_order, _tidy_names, _used_columns, clean, ingest, normalise, read_source
+from models.aviation.ingest import _tidy_names, _used_columns, clean, ingest, normalise, read_source
 from models.aviation.resample import resample
 from models.parallel import together
 from models.aviation.resample import EARTH_RADIUS_M
@@ -116,10 +116,12 @@ def test_flights_table_when_the_first_flight_has_no_airport(opensky_small):
     assert (flights.filter(pl.col("flight_id") != "AAA_lost")["origin"] != "UNKNOWN").any()
 
 
-def test_aircraft_time_order_one_key_and_fallback_equal_a_full_sort():
+def test_aircraft_time_order_equals_a_full_sort():
+    """Random rows (every aircraft's times in many runs, equal times), and rows in runs of one aircraft in time order as
+    state vectors come, some runs of an aircraft overlapping in time."""
     rng = np.random.default_rng(5)
     n = 20_000
-    for span_us in (10**12, 2**60):  # 12 days: one int64 key; ~36,000 years: too wide, two sorts
+    for span_us in (10**12, 2**60):  # 12 days; ~36,000 years
         rows = pl.DataFrame(
             {
                 "_ac": rng.integers(0, 3_000, n).astype(np.uint32),
@@ -127,24 +129,28 @@ def test_aircraft_time_order_one_key_and_fallback_equal_a_full_sort():
             }
         ).with_row_index("row_index")
         missing = rng.random(n) < 0.1
-        # a missing row's time may be anything: the key's span is taken over the other rows
+        # a missing row's time may be anything
         ts = np.where(missing, np.iinfo(np.int64).min, rows["ts"].to_numpy())
         want = rows.filter(~missing).sort("_ac", "ts", "row_index")["row_index"].to_numpy()
-        np.testing.assert_array_equal(_aircraft_time_order(rows["_ac"].to_numpy(), ts, missing), want)
+        np.testing.assert_array_equal(kernels.aircraft_time_order(rows["_ac"].to_numpy(), ts, missing), want)
+    lengths = rng.integers(1, 200, 300)  # 300 runs of one aircraft (of 40), each in time order, overlapping in time
+    ac = np.repeat(rng.integers(0, 40, 300), lengths).astype(np.uint32)
+    ts = np.concatenate([np.sort(rng.integers(0, 10**6, k)) for k in lengths])
+    want = pl.DataFrame({"ac": ac, "ts": ts}).with_row_index().sort("ac", "ts", "index")["index"].to_numpy()
+    np.testing.assert_array_equal(kernels.aircraft_time_order(ac, ts, np.zeros(len(ac), dtype=bool)), want)
 
 
-def test_aircraft_time_order_at_the_edge_of_the_one_key_budget():
+def test_aircraft_time_order_with_extreme_codes_and_times():
     """Aircraft codes of 11 to 14 bits beside a 51-bit time span (a day of worldwide data has ~8,000 aircraft, 13 bits;
-    one time at 1970-01-01 among 2022's gives 51 bits): from 64 bits together one int64 key overflows (the highest
-    codes wrap below the others), at 63 the largest key equals the missing rows' sentinel (a missing row would take a
-    kept row's place). Row 0 is missing; rows 1 and 3 are the highest aircraft code, row 1 at the end of the span."""
+    one time at 1970-01-01 among 2022's gives 51 bits: what overflowed the one int64 key of an earlier sort). Row 0 is
+    missing; rows 1 and 3 are the highest aircraft code, row 1 at the end of the span."""
     span = 2**51 - 1  # µs: 1970-01-01 to 2041-05-06
     for ac_bits in (11, 12, 13, 14):
         top = 2**ac_bits - 1
         ac = np.array([0, top, 0, top, 1], dtype=np.uint32)
         ts = np.array([0, span, 0, 1, 5], dtype=np.int64)
         missing = np.array([True, False, False, False, False])
-        np.testing.assert_array_equal(_aircraft_time_order(ac, ts, missing), [2, 4, 3, 1], err_msg=f"{ac_bits} bits")
+        np.testing.assert_array_equal(kernels.aircraft_time_order(ac, ts, missing), [2, 4, 3, 1], err_msg=f"{ac_bits} bits")
 
 
 def test_kernels_get_the_same_types_from_one_chunk_or_several(monkeypatch, opensky_small):

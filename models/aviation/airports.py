@@ -19,7 +19,7 @@ import numpy as np
 import polars as pl
 from scipy.spatial import cKDTree
 
-from models.aviation.order import in_flight_order, runs
+from models.aviation.order import in_flight_order, run_starts
 from models.units import EARTH_RADIUS_KM, M_PER_FT, M_PER_NM
 
 EARTH_RADIUS_NM = EARTH_RADIUS_KM * 1000.0 / M_PER_NM
@@ -45,6 +45,17 @@ def airports_table() -> pl.DataFrame:
     lines = (_openap_nav() / "nav.dat").read_text(encoding="latin-1").splitlines()
     ils = {f[8] for f in (line.split() for line in lines) if len(f) > 8 and f[0] in ("4", "5")}
     return ap.drop_nulls().with_columns(ils=pl.col("icao").is_in(list(ils)))
+
+
+@lru_cache(maxsize=1)
+def _airport_positions() -> dict[str, tuple[float, float]]:
+    return {icao: (lat, lon) for icao, lat, lon in airports_table().select("icao", "lat", "lon").iter_rows()}
+
+
+def _positions(icao: pl.Series) -> tuple[np.ndarray, np.ndarray]:
+    """(lat, lon) of each airport, NaN for a code that is not one (UNKNOWN)."""
+    known = _airport_positions()
+    return np.array([known.get(c, (np.nan, np.nan)) for c in icao], dtype=float).reshape(-1, 2).T
 
 
 def _unit_xyz(lat: np.ndarray, lon: np.ndarray) -> np.ndarray:
@@ -112,7 +123,7 @@ def flights_table(tracks: pl.DataFrame) -> pl.DataFrame:
     """One row per flight with origin/destination (and the distance to them) from its end points."""
     src = in_flight_order(tracks)
     # flights are contiguous runs of rows: their end points are gathered by position, no grouping needed
-    _, start = runs(src["flight_id"])
+    start = run_starts(src["flight_id"])
     end = np.r_[start[1:], src.height][: len(start)] - 1
     lat, lon, alt = (src[c].to_numpy() for c in ("lat", "lon", "alt_m"))
     ends = src.select("flight_id", "callsign", "icao24", first_ts="ts")[start].with_columns(
@@ -136,16 +147,13 @@ def flights_table(tracks: pl.DataFrame) -> pl.DataFrame:
         pl.col(c).drop_nulls().mode().sort().first().over("callsign").fill_null(pl.col(c)).fill_null("UNKNOWN")
         for c in ("origin", "destination")
     )
-    ap = airports_table().select("icao", "lat", "lon")
-    # maintain_order: the rows stay the flights of `e`, whose end points are measured against their airports
-    voted = voted.join(ap.rename({"icao": "origin", "lat": "o_lat", "lon": "o_lon"}), on="origin", how="left", maintain_order="left").join(
-        ap.rename({"icao": "destination", "lat": "d_lat", "lon": "d_lon"}), on="destination", how="left", maintain_order="left"
-    )
-    v = {c: voted[c].to_numpy() for c in ("o_lat", "o_lon", "d_lat", "d_lon")}
+    # the voted airports' positions looked up for the flights of `e` (a join with the 13,795 airports cost ~1.5 ms)
+    o_lat, o_lon = _positions(voted["origin"])
+    d_lat, d_lon = _positions(voted["destination"])
     return voted.with_columns(
         route=pl.concat_str("origin", "destination", separator="-"),
-        origin_distance_nm=pl.Series(_distance_nm(e["lat0"], e["lon0"], v["o_lat"], v["o_lon"])),
-        destination_distance_nm=pl.Series(_distance_nm(e["latn"], e["lonn"], v["d_lat"], v["d_lon"])),
+        origin_distance_nm=pl.Series(_distance_nm(e["lat0"], e["lon0"], o_lat, o_lon)),
+        destination_distance_nm=pl.Series(_distance_nm(e["latn"], e["lonn"], d_lat, d_lon)),
     ).select(
         "flight_id", "callsign", "icao24", "origin", "destination", "route", "origin_distance_nm",
         "destination_distance_nm", "first_ts", "last_ts", "n_points",

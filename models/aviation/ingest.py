@@ -249,6 +249,13 @@ def normalise(df: pl.DataFrame, source: str) -> pl.DataFrame:
              if canon not in ("ts", "icao24", "callsign") and col in df.columns and df[col].dtype in (pl.String, pl.Null)]
     if typed:  # a CSV's; Parquet columns come typed
         df = df.with_columns(typed)
+    # the costly conversions (the names' tidying and codes, the timestamps: ~60 % of this step) at once
+    names = {canon: col for canon, col in schema.columns.items() if canon in ("icao24", "callsign") and col in df.columns}
+    *tidied, ts = together(
+        *(partial(_tidy_names, df[col].cast(pl.String), lower=canon == "icao24") for canon, col in names.items()),
+        partial(_timestamps, df[schema.columns["ts"]], source),
+    )
+    tidied = dict(zip(names, tidied))
     for canon, col in schema.columns.items():
         if col not in df.columns:
             dtype = {"callsign": pl.String, "onground": pl.Boolean}.get(canon, pl.Float64)
@@ -258,10 +265,10 @@ def normalise(df: pl.DataFrame, source: str) -> pl.DataFrame:
             continue
         e = pl.col(col)
         if canon == "ts":
-            e = pl.lit(_timestamps(df[col], source))
+            e = pl.lit(ts)
         elif canon in ("icao24", "callsign"):
-            names, codes = _tidy_names(df[col].cast(pl.String), lower=canon == "icao24")
-            e = pl.lit(names)
+            tidy, codes = tidied[canon]
+            e = pl.lit(tidy)
             exprs.append(pl.lit(codes).alias("_ac" if canon == "icao24" else "_cs"))
         elif canon == "onground":
             if df[col].dtype == pl.String:  # polars cannot cast text to booleans: a traceback
@@ -340,9 +347,10 @@ def _callsigns(raw: pl.DataFrame, rows: np.ndarray) -> pl.Series:
     return names.set(pl.Series(rows < 0), None) if (rows < 0).any() else names
 
 
-def _runs(first: np.ndarray, length: np.ndarray) -> np.ndarray:
-    """Row positions of the runs [first, first + length), one after the other."""
-    return np.repeat(first - (np.cumsum(length) - length), length) + np.arange(length.sum())
+def _runs(values: np.ndarray, first: np.ndarray, length: np.ndarray) -> np.ndarray:
+    """values[first:first + length] of each run, one after the other (slices copied: one Python step per flight, no
+    index array per row)."""
+    return np.concatenate([values[f : f + n] for f, n in zip(first.tolist(), length.tolist())]) if len(first) else values[:0]
 
 
 def _rule_rows(raw: pl.DataFrame, cfg: IngestConfig, reason: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -410,12 +418,13 @@ def clean(raw: pl.DataFrame, source: str, cfg: IngestConfig = IngestConfig()) ->
     points = flights["points"].to_numpy()
     first = np.cumsum(points) - points
     short = points < cfg.min_points
-    reason[row[_runs(first[short], points[short])]] = kernels.SHORT_SEGMENT
+    reason[_runs(row, first[short], points[short])] = kernels.SHORT_SEGMENT
     order = np.flatnonzero(~short)
     order = order[np.argsort(flights["flight_rank"].to_numpy()[order], kind="stable")]
-    final = _runs(first[order], points[order])
-    tracks = raw.select("ts", "icao24", "lat", "lon", "alt_m", "groundspeed_mps", "track_deg", "vertical_rate_mps")[row[final]]
-    callsign = _callsigns(raw, callsign_row[final])
+    tracks = raw.select("ts", "icao24", "lat", "lon", "alt_m", "groundspeed_mps", "track_deg", "vertical_rate_mps")[
+        _runs(row, first[order], points[order])
+    ]
+    callsign = _callsigns(raw, _runs(callsign_row, first[order], points[order]))
     if callsign.null_count():  # a flight without a callsign keeps its icao24 as one: downstream keys are never null
         callsign = callsign.fill_null(tracks["icao24"])
     flight_id = flights["flight_id"].gather(np.repeat(order, points[order])).set_sorted()  # flagged: checks downstream are free

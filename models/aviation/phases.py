@@ -16,9 +16,10 @@ Either way a flight's phases come in the order climb, cruise, descent; a phase m
 
 from dataclasses import dataclass
 
+import numpy as np
 import polars as pl
 
-from models.aviation.order import in_flight_order
+from models.aviation.order import in_flight_order, run_starts
 from models.units import EARTH_RADIUS_KM
 
 PHASES = ("climb", "cruise", "descent")
@@ -85,7 +86,10 @@ def assign_phases(
 ) -> pl.DataFrame:
     """Add a `phase` column to constant-step tracks; rows come back in (flight_id, ts) order."""
     # windows per flight over an integer run id (rows are grouped by flight) instead of hashing the string ids
-    runs = in_flight_order(tracks).with_columns(_run=pl.col("flight_id").rle_id())
+    src = in_flight_order(tracks)
+    starts = run_starts(src["flight_id"])
+    run = pl.Series(np.repeat(np.arange(len(starts), dtype=np.uint32), np.diff(np.r_[starts, src.height]))).set_sorted()
+    runs = src.with_columns(_run=run)  # flagged sorted: polars' windows over it then skip hashing
     if cfg.method == "vertical":
         t = _vertical_bounds(runs, flights, cfg)
     elif cfg.method == "regions":

@@ -10,7 +10,7 @@ import numpy as np
 import polars as pl
 
 from models.aviation import kernels
-from models.aviation.order import in_flight_order, runs
+from models.aviation.order import in_flight_order, run_starts
 from models.units import EARTH_RADIUS_KM
 
 EARTH_RADIUS_M = EARTH_RADIUS_KM * 1000.0
@@ -35,8 +35,8 @@ def resample(tracks: pl.DataFrame, dt_s: float = 20.0) -> pl.DataFrame:
     if dt_us <= 0:  # a zero step is one point per flight, a negative one no points: never a table to keep
         raise ValueError(f"dt_s must be a positive step in seconds, got {dt_s:g}")
     src = in_flight_order(tracks)
-    # flights are contiguous after the sort: run ids number them without hashing the string ids
-    _, starts = runs(src["flight_id"])
+    # flights are contiguous after the sort: their first rows without hashing the string ids
+    starts = run_starts(src["flight_id"])
     t = src["ts"].dt.epoch("us").to_numpy()
     ids = src["flight_id"].gather(starts)
     first_us = t[starts]

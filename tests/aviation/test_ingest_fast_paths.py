@@ -8,7 +8,7 @@ import numpy as np
 import polars as pl
 
 from models.aviation.airports import flights_table
-from models.aviation.order import in_flight_order
+from models.aviation.order import SAMPLE_EVERY, in_flight_order, run_starts, runs
 from models.aviation import kernels
 from models.aviation.ingest import _tidy_names, _used_columns, clean, ingest, normalise, read_source
 from models.aviation.resample import resample
@@ -205,7 +205,9 @@ def test_flights_table_end_points_equal_a_group_by(opensky_small):
 def test_in_flight_order_sorts_exactly_when_needed():
     ts = pl.Series([0, 5, 9, 1, 2, 3], dtype=pl.Int64).cast(pl.Datetime("us", "UTC"))
     ordered = pl.DataFrame({"flight_id": ["a", "a", "a", "b", "b", "b"], "ts": ts, "x": range(6)})
-    assert in_flight_order(ordered) is ordered  # a later flight may start earlier in time
+    flagged = in_flight_order(ordered)  # a later flight may start earlier in time: no sort, flight_id flagged sorted
+    assert flagged.equals(ordered) and flagged["flight_id"].flags["SORTED_ASC"]
+    assert in_flight_order(flagged) is flagged
     for broken in (
         ordered.with_columns(ts=ts.gather([1, 0, 2, 3, 4, 5])),  # time runs back within a flight
         ordered.with_columns(ts=ts.gather([0, 0, 2, 3, 4, 5])),  # a repeated time
@@ -249,3 +251,23 @@ def test_interpolation_kernel_gets_the_same_types_from_one_chunk_or_several(monk
     for frame in (tracks, pl.concat([tracks[:half], tracks[half:]], rechunk=False)):
         resample(frame)
     assert seen[: len(seen) // 2] == seen[len(seen) // 2 :]
+
+
+def test_run_starts_of_a_sorted_column_equal_a_run_length_pass():
+    """Runs longer than the sampling step, runs shorter than it that no sample sees (the check must send them to the
+    run-length pass), a run starting on a sample, one value, nulls, and a column not flagged sorted."""
+    rng = np.random.default_rng(8)
+    cases = [
+        np.repeat(np.arange(50), rng.integers(SAMPLE_EVERY, 5 * SAMPLE_EVERY, 50)),
+        np.repeat(np.arange(50), rng.integers(1, 3 * SAMPLE_EVERY, 50)),
+        np.repeat(np.arange(3), [SAMPLE_EVERY, SAMPLE_EVERY, 1]),
+        np.repeat(np.arange(3), [SAMPLE_EVERY - 1, 2, SAMPLE_EVERY]),  # the middle run falls between two samples
+        np.zeros(10, dtype=int),
+    ]
+    for ids in cases:
+        names = pl.Series([f"f{i:03d}" for i in ids])
+        want = runs(names)[1]
+        np.testing.assert_array_equal(run_starts(names.set_sorted()), want)
+        np.testing.assert_array_equal(run_starts(names), want)
+    with_null = pl.Series([None, "a", "a", "b"]).set_sorted()
+    np.testing.assert_array_equal(run_starts(with_null), [0, 1, 3])

@@ -11,6 +11,7 @@ Every row read ends either in the cleaned tracks or in the rejects with one reas
 kept + rejected = read always holds (`ingest_summary`).
 """
 
+from bisect import bisect_right
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
@@ -391,12 +392,22 @@ def _rule_rows(raw: pl.DataFrame, cfg: IngestConfig, reason: np.ndarray) -> tupl
     skip = missing | bad_time
     skip.setflags(write=False)
     order = kernels.aircraft_time_order(c["ac"], c["ts"], skip)
-    kept = kernels.point_rules(
-        order, c["ac"], c["ts"], c["lat"], c["lon"], c["alt_m"], onground, c["groundspeed_mps"], c["pos"], has_pos,
-        cfg.min_alt_m, cfg.max_alt_m, cfg.max_speed_mps, reason,
-    )
-    row = kernels.speed_spikes(kept, c["ac"], c["ts"], c["lat"], c["lon"], c["alt_m"], cfg.max_speed_mps, cfg.max_climb_mps, EARTH_RADIUS_M, reason)
-    return row, *kernels.flight_starts(row, c["ac"], c["ts"], c["cs"], cfg.gap_split_s)
+
+    def rules(order: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        kept = kernels.point_rules(
+            order, c["ac"], c["ts"], c["lat"], c["lon"], c["alt_m"], onground, c["groundspeed_mps"], c["pos"], has_pos,
+            cfg.min_alt_m, cfg.max_alt_m, cfg.max_speed_mps, reason,
+        )
+        row = kernels.speed_spikes(kept, c["ac"], c["ts"], c["lat"], c["lon"], c["alt_m"], cfg.max_speed_mps, cfg.max_climb_mps, EARTH_RADIUS_M, reason)
+        return row, *kernels.flight_starts(row, c["ac"], c["ts"], c["cs"], cfg.gap_split_s)
+
+    # every rule looks at one aircraft's rows only: the two halves of the rows, cut between two aircraft, at once
+    # (the kernels release the GIL)
+    mid = len(order) // 2
+    if mid:
+        mid = bisect_right(range(len(order)), c["ac"][order[mid - 1]], lo=mid, key=lambda k: c["ac"][order[k]])
+    halves = together(partial(rules, order[:mid]), partial(rules, order[mid:]))
+    return tuple(np.concatenate(parts) for parts in zip(*halves))
 
 
 def clean(raw: pl.DataFrame, source: str, cfg: IngestConfig = IngestConfig()) -> tuple[pl.DataFrame, pl.DataFrame]:

@@ -72,7 +72,7 @@ def _merge_runs(rows, ts_us):
         ends = merged
 
 
-@jit
+@jit(nogil=True)
 def point_rules(order, ac, ts_us, lat, lon, alt_m, onground, groundspeed_mps, pos_us, has_pos, min_alt_m, max_alt_m,
                 max_speed_mps, reason):
     """Rows `order` (no missing value, in (aircraft, ts, row) order) -> the rows that pass, in that order, moved to the
@@ -114,7 +114,7 @@ def point_rules(order, ac, ts_us, lat, lon, alt_m, onground, groundspeed_mps, po
     return order[:n]
 
 
-@jit
+@jit(nogil=True)
 def speed_spikes(rows, ac, ts_us, lat, lon, alt_m, max_speed_mps, max_climb_mps, earth_radius_m, reason):
     """Rows `rows` (in (aircraft, ts) order) -> those that pass, in that order, moved to the head of `rows` (returned
     as a view of it); writes SPEED_SPIKE into reason[row] of an isolated point the aircraft could not have reached and
@@ -155,7 +155,7 @@ def speed_spikes(rows, ac, ts_us, lat, lon, alt_m, max_speed_mps, max_climb_mps,
     return rows[:m]
 
 
-@jit
+@jit(nogil=True)
 def flight_starts(rows, ac, ts_us, cs, gap_split_s):
     """Rows `rows` (kept, in (aircraft, ts) order) -> (whether each starts a flight, the row whose callsign it takes:
     its own, else the aircraft's last one before it, else -1).
@@ -189,7 +189,7 @@ def grid_rows(t_us, first, end, grid_first, grid_us):
     return row
 
 
-@jit
+@jit(nogil=True)
 def interpolate(t_us, first, end, grid_first, grid_us, row, values, turn, out):
     """Each flight's valid (not NaN) values, linear in time, at its grid times -> out (`grid_rows`' flights, grid
     and rows).

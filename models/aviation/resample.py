@@ -6,11 +6,14 @@ are interpolated at once, each grid point's row found once (kernels.grid_rows) a
 column interpolated from it (kernels.interpolate).
 """
 
+from functools import partial
+
 import numpy as np
 import polars as pl
 
 from models.aviation import kernels
 from models.aviation.order import in_flight_order, run_starts
+from models.parallel import together
 from models.units import EARTH_RADIUS_KM
 
 EARTH_RADIUS_M = EARTH_RADIUS_KM * 1000.0
@@ -47,27 +50,25 @@ def resample(tracks: pl.DataFrame, dt_s: float = 20.0) -> pl.DataFrame:
         a.setflags(write=False)
     row = kernels.grid_rows(t, starts, ends, grid_first, grid_us)
 
-    def interp(values: np.ndarray, turn: float = 0.0) -> np.ndarray:
+    def interp(column: str, turn: float = 0.0) -> np.ndarray:
         """np.interp over each flight's valid values, gaps outside them (kernels.interpolate); with `turn` (360) an
         angle, interpolated along the shorter arc (not wrapped)."""
-        out = np.empty(len(grid_us))
+        values = src[column].cast(pl.Float64).fill_null(np.nan).to_numpy()
         values.setflags(write=False)
+        out = np.empty(len(grid_us))
         kernels.interpolate(t, starts, ends, grid_first, grid_us, row, values, turn, out)
         return out
 
-    col = lambda c: src[c].cast(pl.Float64).fill_null(np.nan).to_numpy()  # noqa: E731
+    # angles turn the shorter way: across the antimeridian (179 -> -179), through north (359 -> 1 deg)
+    turns = {"lat": 0.0, "lon": 360.0, "alt_m": 0.0, "groundspeed_mps": 0.0, "track_deg": 360.0, "vertical_rate_mps": 0.0}
+    grid = dict(zip(turns, together(*(partial(interp, c, turn) for c, turn in turns.items()))))  # the kernel releases the GIL
+    grid["lon"] = (grid["lon"] + 180.0) % 360.0 - 180.0
+    grid["track_deg"] %= 360.0
     out = pl.DataFrame(
         {
             "flight_id": ids.gather(owner).set_sorted(),  # in order: flagged, so that checks downstream are free
             "ts": pl.Series(grid_us).cast(pl.Datetime("us", "UTC")),
-            "lat": interp(col("lat")),
-            # across the antimeridian (179 -> -179) the shorter arc is the one the aircraft flew
-            "lon": (interp(col("lon"), turn=360.0) + 180.0) % 360.0 - 180.0,
-            "alt_m": interp(col("alt_m")),
-            "groundspeed_mps": interp(col("groundspeed_mps")),
-            # a heading of 359 deg then 1 deg turns through north
-            "track_deg": interp(col("track_deg"), turn=360.0) % 360.0,
-            "vertical_rate_mps": interp(col("vertical_rate_mps")),
+            **grid,
         }
     )
     return fill_rates_from_positions(out, dt_s)

@@ -287,3 +287,13 @@ def test_ingest_asset_refuses_to_keep_no_flight(tmp_path, small_raw):
     (failure,) = [e for e in result.all_events if e.is_step_failure]
     message = failure.step_failure_data.error.cause.message
     assert "no flight kept of" in message and "short_segment=" in message
+
+
+def test_the_rules_see_an_aircraft_whole_when_the_rows_are_cut_in_two(tmp_path):
+    """The rules run on two halves of the rows at once, cut between aircraft: aircraft aaa111's second and third rows
+    (a duplicate) sit at the middle of the five rows, where a cut inside the aircraft would keep both."""
+    rows = _state_vectors(["aaa111"] * 4 + ["bbb222"], ["AFL1"] * 4 + ["SDM2"], [None] * 5)
+    rows = rows.with_columns(time=pl.Series([0, 1, 1, 2, 0], dtype=pl.Int64) + 1_650_000_000)
+    tracks, rejects, _ = ingest(_write(rows, tmp_path / "cut.parquet"), IngestConfig(min_points=1))
+    assert rejects["reason"].to_list() == ["duplicate_row"] and rejects["row_index"].to_list() == [2]
+    assert tracks.height == 4

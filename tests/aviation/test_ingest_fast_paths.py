@@ -163,7 +163,7 @@ def test_kernels_get_the_same_types_from_one_chunk_or_several(monkeypatch, opens
     df = pl.read_parquet(opensky_small)
     for frame in (df, pl.concat([df[:1000], df[1000:]], rechunk=False)):
         clean(normalise(frame, "x"), "x")
-    assert seen[:3] == seen[3:]
+    assert seen[: len(seen) // 2] == seen[len(seen) // 2 :]
 
 
 def test_name_codes_sort_like_the_tidy_names_in_runs_or_not():

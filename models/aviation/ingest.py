@@ -257,6 +257,9 @@ def normalise(df: pl.DataFrame, source: str) -> pl.DataFrame:
         partial(_timestamps, df[schema.columns["ts"]], source),
     )
     tidied = dict(zip(names, tidied))
+    # which float columns hold NaN: one scan each, in one select (a scan instead of a copy where there is none)
+    floats = [c for c in df.columns if df[c].dtype.is_float()]
+    has_nan = df.select(pl.col(floats).is_nan().any()).row(0, named=True) if floats else {}
     for canon, col in schema.columns.items():
         if col not in df.columns:
             dtype = {"callsign": pl.String, "onground": pl.Boolean}.get(canon, pl.Float64)
@@ -281,7 +284,7 @@ def normalise(df: pl.DataFrame, source: str) -> pl.DataFrame:
             if not df[col].dtype.is_numeric():
                 raise IngestError(f"{source}: column '{col}' is {df[col].dtype}, expected numbers")
             e = e.cast(pl.Float64)
-            if df[col].dtype.is_float() and df[col].is_nan().any():  # a scan instead of a copy where there is none
+            if has_nan.get(col):
                 e = e.fill_nan(None)
             e = e * schema.scale[canon] if schema.scale.get(canon, 1.0) != 1.0 else e
         exprs.append(e.alias(canon))
@@ -329,13 +332,17 @@ def check_units(df: pl.DataFrame, schema: Schema, source: str) -> None:
 def _split_flights(raw: pl.DataFrame, row: np.ndarray, new: np.ndarray, callsign_row: np.ndarray) -> pl.DataFrame:
     """One row per flight of the kept rows `row` (contiguous runs, starting where `new`), in row order: flight_id =
     callsign_icao24_YYYYMMDDTHHMM from its first point (its callsign: that of callsign_row, -1: none, the icao24
-    then), flight_rank = rank of the name, points. Names are built once per flight."""
+    then), icao24, callsign (its last point's: a flight's rows all carry it but those before its aircraft's first
+    callsign, null if none), flight_rank = rank of the name, points. Names are built once per flight."""
     first = np.flatnonzero(new)
+    last = np.r_[first[1:], len(row)][: len(first)] - 1
     firsts = pl.DataFrame(
         {"callsign": _callsigns(raw, callsign_row[first]), "icao24": raw["icao24"].gather(row[first]), "ts": raw["ts"].gather(row[first])}
     )
     flights = firsts.select(
         flight_id=pl.concat_str(pl.col("callsign").fill_null(pl.col("icao24")), "icao24", pl.col("ts").dt.strftime("%Y%m%dT%H%M"), separator="_"),
+        icao24="icao24",
+        callsign=_callsigns(raw, callsign_row[last]),
         points=pl.Series(np.diff(np.r_[first, len(row)])),
     )
     # the rank of the name orders the flights by (flight_id, ts) comparing integers instead of strings
@@ -432,14 +439,17 @@ def clean(raw: pl.DataFrame, source: str, cfg: IngestConfig = IngestConfig()) ->
     reason[_runs(row, first[short], points[short])] = kernels.SHORT_SEGMENT
     order = np.flatnonzero(~short)
     order = order[np.argsort(flights["flight_rank"].to_numpy()[order], kind="stable")]
-    tracks = raw.select("ts", "icao24", "lat", "lon", "alt_m", "groundspeed_mps", "track_deg", "vertical_rate_mps")[
-        _runs(row, first[order], points[order])
-    ]
-    callsign = _callsigns(raw, _runs(callsign_row, first[order], points[order]))
-    if callsign.null_count():  # a flight without a callsign keeps its icao24 as one: downstream keys are never null
-        callsign = callsign.fill_null(tracks["icao24"])
-    flight_id = flights["flight_id"].gather(np.repeat(order, points[order])).set_sorted()  # flagged: checks downstream are free
-    tracks = tracks.with_columns(flight_id=flight_id, callsign=callsign).select(
+    tracks = raw.select("ts", "lat", "lon", "alt_m", "groundspeed_mps", "track_deg", "vertical_rate_mps")[_runs(row, first[order], points[order])]
+    # the names are the flight's on every row (gathered from the flights, not from the raw rows), but for the rows
+    # before the aircraft's first callsign (a prefix of its first flight), which keep their icao24 as callsign, as does
+    # a flight without one: downstream keys are never null
+    names = flights.select("flight_id", "icao24", "callsign")[np.repeat(order, points[order])]
+    callsign, at = names["callsign"], np.cumsum(points[order]) - points[order]
+    unnamed = [at[j] + np.flatnonzero(callsign_row[first[f] : first[f] + points[f]] < 0) for j, f in enumerate(order) if callsign_row[first[f]] < 0]
+    if unnamed:
+        unnamed = np.concatenate(unnamed)
+        callsign = callsign.scatter(unnamed, names["icao24"].gather(unnamed))
+    tracks = tracks.with_columns(names["flight_id"].set_sorted(), names["icao24"], callsign).select(  # flagged: checks downstream are free
         "flight_id", "ts", "icao24", "callsign", "lat", "lon", "alt_m", "groundspeed_mps", "track_deg", "vertical_rate_mps"
     )
     # rejects in row order: the positions of the nonzero reasons are already sorted

@@ -297,3 +297,14 @@ def test_the_rules_see_an_aircraft_whole_when_the_rows_are_cut_in_two(tmp_path):
     tracks, rejects, _ = ingest(_write(rows, tmp_path / "cut.parquet"), IngestConfig(min_points=1))
     assert rejects["reason"].to_list() == ["duplicate_row"] and rejects["row_index"].to_list() == [2]
     assert tracks.height == 4
+
+
+def test_rows_before_an_aircraft_first_callsign_keep_its_icao24(tmp_path):
+    """An aircraft that sends its callsign from its third row on: one flight, named by its first point (the icao24),
+    whose first two rows carry the icao24 as callsign and the others the callsign; a second flight after a gap
+    carries the callsign on every row."""
+    rows = _state_vectors(["aaa111"] * 6, [None, None, "AFL1", "AFL1", None, "AFL1"], [None] * 6)
+    rows = rows.with_columns(time=pl.Series([0, 1, 2, 3, 4000, 4001], dtype=pl.Int64) + 1_650_000_000)
+    tracks = ingest(_write(rows, tmp_path / "late.parquet"), IngestConfig(min_points=1))[0].sort("ts")
+    assert tracks["callsign"].to_list() == ["aaa111", "aaa111", "AFL1", "AFL1", "AFL1", "AFL1"]
+    assert tracks["flight_id"].str.slice(0, 14).to_list() == ["aaa111_aaa111_"] * 4 + ["AFL1_aaa111_20"] * 2

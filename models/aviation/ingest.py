@@ -400,21 +400,27 @@ def _rule_rows(raw: pl.DataFrame, cfg: IngestConfig, reason: np.ndarray) -> tupl
     skip.setflags(write=False)
     order = kernels.aircraft_time_order(c["ac"], c["ts"], skip)
 
-    def rules(order: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    new, callsign_row = np.empty(len(order), dtype=bool), np.empty(len(order), dtype=np.int64)
+
+    def rules(lo: int, hi: int) -> int:
+        """The rules on order[lo:hi]: the rows kept, their flight starts and callsign rows written from lo on; how many."""
         kept = kernels.point_rules(
-            order, c["ac"], c["ts"], c["lat"], c["lon"], c["alt_m"], onground, c["groundspeed_mps"], c["pos"], has_pos,
+            order[lo:hi], c["ac"], c["ts"], c["lat"], c["lon"], c["alt_m"], onground, c["groundspeed_mps"], c["pos"], has_pos,
             cfg.min_alt_m, cfg.max_alt_m, cfg.max_speed_mps, reason,
         )
         row = kernels.speed_spikes(kept, c["ac"], c["ts"], c["lat"], c["lon"], c["alt_m"], cfg.max_speed_mps, cfg.max_climb_mps, EARTH_RADIUS_M, reason)
-        return row, *kernels.flight_starts(row, c["ac"], c["ts"], c["cs"], cfg.gap_split_s)
+        kernels.flight_starts(row, c["ac"], c["ts"], c["cs"], cfg.gap_split_s, new[lo : lo + row.size], callsign_row[lo : lo + row.size])
+        return row.size
 
     # every rule looks at one aircraft's rows only: the two halves of the rows, cut between two aircraft, at once
-    # (the kernels release the GIL)
+    # (the kernels release the GIL); the second half's results then move up behind the first's, in place
     mid = len(order) // 2
     if mid:
         mid = bisect_right(range(len(order)), c["ac"][order[mid - 1]], lo=mid, key=lambda k: c["ac"][order[k]])
-    halves = together(partial(rules, order[:mid]), partial(rules, order[mid:]))
-    return tuple(np.concatenate(parts) for parts in zip(*halves))
+    n1, n2 = together(partial(rules, 0, mid), partial(rules, mid, len(order)))
+    for a in (order, new, callsign_row):
+        a[n1 : n1 + n2] = a[mid : mid + n2]
+    return order[: n1 + n2], new[: n1 + n2], callsign_row[: n1 + n2]
 
 
 def clean(raw: pl.DataFrame, source: str, cfg: IngestConfig = IngestConfig()) -> tuple[pl.DataFrame, pl.DataFrame]:

@@ -156,23 +156,20 @@ def speed_spikes(rows, ac, ts_us, lat, lon, alt_m, max_speed_mps, max_climb_mps,
 
 
 @jit(nogil=True)
-def flight_starts(rows, ac, ts_us, cs, gap_split_s):
-    """Rows `rows` (kept, in (aircraft, ts) order) -> (whether each starts a flight, the row whose callsign it takes:
-    its own, else the aircraft's last one before it, else -1).
+def flight_starts(rows, ac, ts_us, cs, gap_split_s, new, callsign_row):
+    """Rows `rows` (kept, in (aircraft, ts) order) -> new[k]: whether rows[k] starts a flight; callsign_row[k]: the row
+    whose callsign it takes: its own, else the aircraft's last one before it, else -1 (both written into the caller's
+    arrays, as long as `rows`).
 
     A flight starts at an aircraft's first row, after a silence longer than gap_split_s, and where the (carried
     forward) callsign code `cs` (-1: none) changes from one known callsign to another."""
-    n = rows.size
-    new = np.zeros(n, dtype=np.bool_)
-    callsign_row = np.full(n, -1, dtype=np.int64)
-    for k in range(n):
+    for k in range(rows.size):
         r = rows[k]
         first = k == 0 or ac[r] != ac[rows[k - 1]]
         carried = -1 if first else callsign_row[k - 1]
         callsign_row[k] = r if cs[r] >= 0 else carried
         renamed = cs[r] >= 0 and carried >= 0 and cs[r] != cs[carried]
         new[k] = first or (ts_us[r] - ts_us[rows[k - 1]]) / 1e6 > gap_split_s or renamed
-    return new, callsign_row
 
 
 @jit

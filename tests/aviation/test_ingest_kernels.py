@@ -133,13 +133,20 @@ def _split_oracle(ac, ts, cs) -> tuple[np.ndarray, np.ndarray]:
     return new, filled["_row"].fill_null(-1).to_numpy()
 
 
+def _flight_starts(rows, ac, ts, cs):
+    """The kernel's outputs, written into arrays filled with values it must overwrite."""
+    new, callsign_row = np.ones(rows.size, dtype=bool), np.full(rows.size, 99, dtype=np.int64)
+    kernels.flight_starts(rows, ac, ts, cs, CFG.gap_split_s, new, callsign_row)
+    return new, callsign_row
+
+
 def test_flight_starts_equal_the_polars_split():
     rng = np.random.default_rng(7)
     n = 5_000
     ac = np.sort(rng.integers(0, 30, n)).astype(np.uint32)
     ts = np.cumsum(rng.choice([1, 10, 1801, 1800], n, p=[0.6, 0.3, 0.05, 0.05])) * 1_000_000
     cs = rng.choice([-1, -1, 0, 1, 2], n).astype(np.int64)
-    new, callsign_row = kernels.flight_starts(np.arange(n), ac, ts, cs, CFG.gap_split_s)
+    new, callsign_row = _flight_starts(np.arange(n), ac, ts, cs)
     want_new, want_row = _split_oracle(ac, ts, cs)
     assert want_new.sum() > 500 and (want_row < 0).sum() > 10
     np.testing.assert_array_equal(new, want_new)
@@ -150,6 +157,6 @@ def test_flight_starts_at_a_gap_a_rename_and_another_aircraft_only():
     ac = np.array([0, 0, 0, 0, 0, 0, 1], dtype=np.uint32)
     ts = np.array([0, 1, 2, 1803, 1804, 1805, 1806], dtype=np.int64) * 1_000_000  # 1801 s of silence before row 3
     cs = np.array([-1, 4, -1, 4, 5, -1, -1], dtype=np.int64)  # none, then 4 (no new flight), 5 (a new one)
-    new, callsign_row = kernels.flight_starts(np.arange(7), ac, ts, cs, CFG.gap_split_s)
+    new, callsign_row = _flight_starts(np.arange(7), ac, ts, cs)
     assert new.tolist() == [True, False, False, True, True, False, True]
     assert callsign_row.tolist() == [-1, 1, 1, 3, 4, 4, -1]

@@ -14,7 +14,9 @@ from pathlib import Path
 import pytest
 
 import benchlib as b
+from models.memory import keep_freed_memory
 
+keep_freed_memory()  # the process set up as the pipeline's are (pipelines/definitions.py)
 HOME_AT_START = str(Path(os.environ.get("TRAFFICLEARN_HOME", "var")).resolve())
 RESULTS: dict = {}
 BENCH_DIR = Path(__file__).resolve().parent

@@ -240,6 +240,13 @@ def test_together_returns_results_in_order_and_raises_a_callee_error():
         together(fails, lambda: 2)
 
 
+@pytest.mark.timeout(60)
+def test_together_nested_deeper_than_the_pool_has_threads_does_not_wait_forever():
+    """Inner calls from the pool's threads run in the calling thread instead of waiting on the busy pool."""
+    nested = lambda depth: 1 if depth == 0 else sum(together(*(lambda: nested(depth - 1) for _ in range(3))))  # noqa: E731
+    assert nested(4) == 3**4
+
+
 def test_interpolation_kernel_gets_the_same_types_from_one_chunk_or_several(monkeypatch, opensky_small):
     """As for the ingest kernels: tracks in one chunk or several must not compile the kernels a second time."""
     seen = []

@@ -390,15 +390,10 @@ def _rule_rows(raw: pl.DataFrame, cfg: IngestConfig, reason: np.ndarray) -> tupl
     has_pos = flag(pl.col("pos_time").is_null(), False)
     # read-only whether polars lent a column's memory (one chunk) or copied it (several: a Parquet file of many row
     # groups, a CSV read in parallel): numba compiles a kernel once per argument type, read-only or not included
-    for a in (*c.values(), onground, has_pos):
+    for a in (*c.values(), missing, onground, has_pos):
         a.setflags(write=False)
     # the first rules look at each row alone, so they run before the sort, which then orders only the rows left
-    reason[missing] = kernels.MISSING_VALUE
-    bad_time = ~missing & ((c["ts"] < TS_RANGE_US[0]) | (c["ts"] >= TS_RANGE_US[1]))
-    reason[bad_time] = kernels.OUT_OF_RANGE
-    skip = missing | bad_time
-    skip.setflags(write=False)
-    order = kernels.aircraft_time_order(c["ac"], c["ts"], skip)
+    order = kernels.aircraft_time_order(c["ac"], c["ts"], missing, *TS_RANGE_US, reason)
 
     new, callsign_row = np.empty(len(order), dtype=bool), np.empty(len(order), dtype=np.int64)
 

@@ -19,23 +19,31 @@ FAST, STEEP = 1, 2  # a leg's bits in `speed_spikes`
 
 
 @jit
-def aircraft_time_order(ac, ts_us, skip):
-    """Positions of the rows not `skip`, in (aircraft, ts, row) order. A counting sort by aircraft code (stable: rows
-    stay in file order), then a stable sort by time of each aircraft whose rows are not already in time order: state
-    vectors come in runs of one aircraft in time order, so most aircraft need none (the bundled file: 6 of 49)."""
+def aircraft_time_order(ac, ts_us, missing, ts_lo, ts_hi, reason):
+    """The rules that look at a row alone, then the rows they keep in (aircraft, ts, row) order.
+
+    A row with a missing value gets MISSING_VALUE, one with a time outside [ts_lo, ts_hi) OUT_OF_RANGE (a decoding
+    error, which would overflow the later time differences), written into reason[row] (all 0 before). The others: a
+    counting sort by aircraft code (stable: rows stay in file order), then a stable sort by time of each aircraft whose
+    rows are not already in time order: state vectors come in runs of one aircraft in time order, so most aircraft
+    need none (the bundled file: 6 of 49)."""
     n_aircraft = 0
     for r in range(ac.size):
-        if not skip[r]:
+        if missing[r]:
+            reason[r] = MISSING_VALUE
+        elif not ts_lo <= ts_us[r] < ts_hi:
+            reason[r] = OUT_OF_RANGE
+        else:
             n_aircraft = max(n_aircraft, ac[r] + 1)
     first = np.zeros(n_aircraft + 1, dtype=np.int64)  # first[a]: aircraft a's first slot
     for r in range(ac.size):
-        if not skip[r]:
+        if reason[r] == 0:
             first[ac[r] + 1] += 1
     first = np.cumsum(first)
     slot = first[:-1].copy()
     order = np.empty(first[-1], dtype=np.int64)
     for r in range(ac.size):
-        if not skip[r]:
+        if reason[r] == 0:
             order[slot[ac[r]]] = r
             slot[ac[r]] += 1
     for a in range(n_aircraft):

@@ -116,6 +116,14 @@ def test_flights_table_when_the_first_flight_has_no_airport(opensky_small):
     assert (flights.filter(pl.col("flight_id") != "AAA_lost")["origin"] != "UNKNOWN").any()
 
 
+def _order(ac, ts, missing):
+    """The kernel's order of the rows not missing (every time in range: the range is the widest int64 one)."""
+    reason = np.zeros(len(ac), dtype=np.uint8)
+    order = kernels.aircraft_time_order(ac, ts, missing, np.iinfo(np.int64).min, np.iinfo(np.int64).max, reason)
+    np.testing.assert_array_equal(reason, np.where(missing, kernels.MISSING_VALUE, 0))
+    return order
+
+
 def test_aircraft_time_order_equals_a_full_sort():
     """Random rows (every aircraft's times in many runs, equal times), and rows in runs of one aircraft in time order as
     state vectors come, some runs of an aircraft overlapping in time."""
@@ -132,12 +140,12 @@ def test_aircraft_time_order_equals_a_full_sort():
         # a missing row's time may be anything
         ts = np.where(missing, np.iinfo(np.int64).min, rows["ts"].to_numpy())
         want = rows.filter(~missing).sort("_ac", "ts", "row_index")["row_index"].to_numpy()
-        np.testing.assert_array_equal(kernels.aircraft_time_order(rows["_ac"].to_numpy(), ts, missing), want)
+        np.testing.assert_array_equal(_order(rows["_ac"].to_numpy(), ts, missing), want)
     lengths = rng.integers(1, 200, 300)  # 300 runs of one aircraft (of 40), each in time order, overlapping in time
     ac = np.repeat(rng.integers(0, 40, 300), lengths).astype(np.uint32)
     ts = np.concatenate([np.sort(rng.integers(0, 10**6, k)) for k in lengths])
     want = pl.DataFrame({"ac": ac, "ts": ts}).with_row_index().sort("ac", "ts", "index")["index"].to_numpy()
-    np.testing.assert_array_equal(kernels.aircraft_time_order(ac, ts, np.zeros(len(ac), dtype=bool)), want)
+    np.testing.assert_array_equal(_order(ac, ts, np.zeros(len(ac), dtype=bool)), want)
 
 
 def test_aircraft_time_order_with_extreme_codes_and_times():
@@ -150,7 +158,7 @@ def test_aircraft_time_order_with_extreme_codes_and_times():
         ac = np.array([0, top, 0, top, 1], dtype=np.uint32)
         ts = np.array([0, span, 0, 1, 5], dtype=np.int64)
         missing = np.array([True, False, False, False, False])
-        np.testing.assert_array_equal(kernels.aircraft_time_order(ac, ts, missing), [2, 4, 3, 1], err_msg=f"{ac_bits} bits")
+        np.testing.assert_array_equal(_order(ac, ts, missing), [2, 4, 3, 1], err_msg=f"{ac_bits} bits")
 
 
 def test_kernels_get_the_same_types_from_one_chunk_or_several(monkeypatch, opensky_small):

@@ -28,8 +28,9 @@ def together(*calls):
     core; returns their results in order (an exception of one is raised here). For pieces of one step that release
     the GIL: on the flight ingest polars' own threads leave the second core idle."""
     global _threads
-    if threading.current_thread().name.startswith("together"):  # called from one of the pool's threads: waiting on
-        return [call() for call in calls]  # the pool there could wait forever, so the calls run one after the other
+    # one call needs no thread; from one of the pool's own threads, waiting on the pool could wait forever
+    if len(calls) < 2 or threading.current_thread().name.startswith("together"):
+        return [call() for call in calls]
     if _threads is None:
         _threads = ThreadPoolExecutor(usable_cores(), thread_name_prefix="together")
     futures = [_threads.submit(call) for call in calls[:-1]]

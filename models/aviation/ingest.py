@@ -446,9 +446,9 @@ def clean(raw: pl.DataFrame, source: str, cfg: IngestConfig = IngestConfig()) ->
     # a flight without one: downstream keys are never null
     names = flights.select("flight_id", "icao24", "callsign")[np.repeat(order, points[order])]
     callsign, at = names["callsign"], np.cumsum(points[order]) - points[order]
-    unnamed = [at[j] + np.flatnonzero(callsign_row[first[f] : first[f] + points[f]] < 0) for j, f in enumerate(order) if callsign_row[first[f]] < 0]
-    if unnamed:
-        unnamed = np.concatenate(unnamed)
+    late = np.flatnonzero(callsign_row[first[order]] < 0)  # the flights whose first row has no callsign yet
+    if len(late):
+        unnamed = np.concatenate([at[j] + np.flatnonzero(callsign_row[first[f] : first[f] + points[f]] < 0) for j, f in zip(late, order[late])])
         callsign = callsign.scatter(unnamed, names["icao24"].gather(unnamed))
     tracks = tracks.with_columns(names["flight_id"].set_sorted(), names["icao24"], callsign).select(  # flagged: checks downstream are free
         "flight_id", "ts", "icao24", "callsign", "lat", "lon", "alt_m", "groundspeed_mps", "track_deg", "vertical_rate_mps"

@@ -152,7 +152,7 @@ def _read_parquet(p: Path) -> pl.DataFrame:
         halves[half].append(c)
         stored[half] += size[c]
     parts = together(*(partial(pl.read_parquet, p, columns=h) for h in halves if h))
-    return pl.concat(parts, how="horizontal").select(columns)
+    return pl.concat(parts, how="horizontal").select(columns) if parts else pl.DataFrame()
 
 
 def _used_columns(present: list[str]) -> list[str]:

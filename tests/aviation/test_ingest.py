@@ -114,6 +114,7 @@ def test_a_csv_column_empty_in_its_first_rows_is_read_as_numbers(small_raw, tmp_
         (lambda p, raw: p / "nope.parquet", "no such file"),
         (lambda p, raw: (p / "empty.csv").write_text("time,icao24,lat,lon,baroaltitude\n") and p / "empty.csv", "no rows"),
         (lambda p, raw: (p / "x.parquet").write_bytes(b"this is not parquet") and p / "x.parquet", "not a readable parquet"),
+        (lambda p, raw: _write(pl.DataFrame(), p / "no_columns.parquet"), "no rows"),
         (lambda p, raw: (p / "notes.txt").write_text("hello") and p / "notes.txt", "unsupported file type '.txt', expected .parquet, .csv, .tsv, .json, .jsonl or .ndjson (the text ones may be gzipped: .csv.gz)"),
         (lambda p, raw: _write(raw.drop("lat"), p / "nolat.parquet"), "missing columns ['lat']"),
         (lambda p, raw: _write(raw.with_columns(pl.col("baroaltitude") / M_PER_FT), p / "feet.parquet"), "looks like feet"),

@@ -418,9 +418,9 @@ def _rule_rows(raw: pl.DataFrame, cfg: IngestConfig, reason: np.ndarray) -> tupl
     return order[: n1 + n2], new[: n1 + n2], callsign_row[: n1 + n2]
 
 
-def clean(raw: pl.DataFrame, source: str, cfg: IngestConfig = IngestConfig()) -> tuple[pl.DataFrame, pl.DataFrame]:
+def clean(raw: pl.DataFrame, source: str, cfg: IngestConfig = IngestConfig()) -> tuple[pl.DataFrame, pl.DataFrame, dict[str, int]]:
     """Normalised rows (`normalise`'s output: row_index is the row's position) -> (cleaned points with
-    flight_id, rejects with reason). Every row ends in one.
+    flight_id, rejects with reason, rows rejected per reason). Every row ends in one.
 
     Rules, each rejected row getting the first reason that hits it: a missing time, aircraft or position; a time
     outside 1970-2100 (out of range); then, on the rows sorted by (aircraft, ts, row), a duplicate, a point on the
@@ -440,7 +440,8 @@ def clean(raw: pl.DataFrame, source: str, cfg: IngestConfig = IngestConfig()) ->
     reason[_runs(row, first[short], points[short])] = kernels.SHORT_SEGMENT
     order = np.flatnonzero(~short)
     order = order[np.argsort(flights["flight_rank"].to_numpy()[order], kind="stable")]
-    tracks = raw.select("ts", "lat", "lon", "alt_m", "groundspeed_mps", "track_deg", "vertical_rate_mps")[_runs(row, first[order], points[order])]
+    columns = ("ts", "lat", "lon", "alt_m", "groundspeed_mps", "track_deg", "vertical_rate_mps")
+    tracks = raw.select(columns)[_runs(row, first[order], points[order])]
     # the names are the flight's on every row (gathered from the flights, not from the raw rows), but for the rows
     # before the aircraft's first callsign (a prefix of its first flight), which keep their icao24 as callsign, as does
     # a flight without one: downstream keys are never null
@@ -448,9 +449,12 @@ def clean(raw: pl.DataFrame, source: str, cfg: IngestConfig = IngestConfig()) ->
     callsign, at = names["callsign"], np.cumsum(points[order]) - points[order]
     late = np.flatnonzero(callsign_row[first[order]] < 0)  # the flights whose first row has no callsign yet
     if len(late):
-        unnamed = np.concatenate([at[j] + np.flatnonzero(callsign_row[first[f] : first[f] + points[f]] < 0) for j, f in zip(late, order[late])])
+        unnamed = np.concatenate(
+            [at[j] + np.flatnonzero(callsign_row[first[f] : first[f] + points[f]] < 0) for j, f in zip(late, order[late])]
+        )
         callsign = callsign.scatter(unnamed, names["icao24"].gather(unnamed))
-    tracks = tracks.with_columns(names["flight_id"].set_sorted(), names["icao24"], callsign).select(  # flagged: checks downstream are free
+    # flight_id flagged sorted: checks downstream are free
+    tracks = tracks.with_columns(names["flight_id"].set_sorted(), names["icao24"], callsign).select(
         "flight_id", "ts", "icao24", "callsign", "lat", "lon", "alt_m", "groundspeed_mps", "track_deg", "vertical_rate_mps"
     )
     # rejects in row order: the positions of the nonzero reasons are already sorted
@@ -462,25 +466,31 @@ def clean(raw: pl.DataFrame, source: str, cfg: IngestConfig = IngestConfig()) ->
         ],
         how="horizontal",
     ).with_columns(source=pl.lit(source))
-    return tracks, rejects
+    # counted from the codes: grouping the rejects' reason strings cost ~1.5 ms on the bundled file
+    counts = np.bincount(reason, minlength=len(kernels.REASONS) + 1)
+    rejected = {kernels.REASONS[code - 1]: int(n) for code, n in enumerate(counts) if code and n}
+    return tracks, rejects, rejected
 
 
-def summarise(source: str, n_read: int, kept: int, rejects: pl.DataFrame) -> pl.DataFrame:
-    """Row accounting: read = kept + sum(rejected per reason)."""
-    per_reason = rejects.group_by("reason").agg(rows=pl.len().cast(pl.Int64)).sort("reason")
-    head = pl.DataFrame(
-        {"source": [source] * 2, "outcome": ["read", "kept"], "reason": ["", ""], "rows": [n_read, kept]},
+def summarise(source: str, n_read: int, kept: int, rejected: dict[str, int]) -> pl.DataFrame:
+    """Row accounting: read = kept + sum(rejected per reason), the reasons in alphabetical order."""
+    reasons = sorted(rejected)
+    return pl.DataFrame(
+        {
+            "source": [source] * (2 + len(reasons)),
+            "outcome": ["read", "kept"] + ["rejected"] * len(reasons),
+            "reason": ["", "", *reasons],
+            "rows": [n_read, kept, *(rejected[r] for r in reasons)],
+        },
         schema={"source": pl.String, "outcome": pl.String, "reason": pl.String, "rows": pl.Int64},
     )
-    rej = per_reason.select(source=pl.lit(source), outcome=pl.lit("rejected"), reason="reason", rows="rows")
-    return pl.concat([head, rej])
 
 
 def ingest(path: str | Path, cfg: IngestConfig = IngestConfig()) -> tuple[pl.DataFrame, pl.DataFrame, pl.DataFrame]:
     """Read one file -> (cleaned tracks, rejects, summary). Raises IngestError on unusable input."""
     source = Path(path).name
     raw = normalise(read_source(path), source)
-    tracks, rejects = clean(raw, source, cfg)
-    summary = summarise(source, raw.height, tracks.height, rejects)
+    tracks, rejects, rejected = clean(raw, source, cfg)
+    summary = summarise(source, raw.height, tracks.height, rejected)
     assert tracks.height + rejects.height == raw.height, "row accounting broken"
     return tracks, rejects, summary

@@ -27,7 +27,7 @@ def load_demand(path: str | Path, min_points: int = 6, so6_step_s: float = 30.0)
         points, flights, rej = so6_demand(p, so6_step_s)
         rejects = rej.select("source", row_number=pl.col("line_number").cast(pl.Int64), reason="reason", detail="line")
         read = len([ln for ln in p.read_text(errors="replace").splitlines() if ln.strip()])
-        summary = summarise(p.name, read, read - rejects.height, rejects)
+        summary = summarise(p.name, read, read - rejects.height, dict(rejects.group_by("reason").len().iter_rows()))
     else:
         points, flights, rej, summary = adsb_demand(p, min_points)
         rejects = rej.select(

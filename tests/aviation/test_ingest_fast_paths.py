@@ -171,7 +171,8 @@ def test_kernels_get_the_same_types_from_one_chunk_or_several(monkeypatch, opens
     df = pl.read_parquet(opensky_small)
     for frame in (df, pl.concat([df[:1000], df[1000:]], rechunk=False)):
         clean(normalise(frame, "x"), "x")
-    assert seen[: len(seen) // 2] == seen[len(seen) // 2 :]
+    # as sets: the two halves of the rows call the kernels from two threads, in either order
+    assert seen and set(seen[: len(seen) // 2]) == set(seen[len(seen) // 2 :])
 
 
 def test_name_codes_sort_like_the_tidy_names_in_runs_or_not():
@@ -265,7 +266,7 @@ def test_interpolation_kernel_gets_the_same_types_from_one_chunk_or_several(monk
     half = tracks.height // 2
     for frame in (tracks, pl.concat([tracks[:half], tracks[half:]], rechunk=False)):
         resample(frame)
-    assert seen[: len(seen) // 2] == seen[len(seen) // 2 :]
+    assert seen and set(seen[: len(seen) // 2]) == set(seen[len(seen) // 2 :])  # the columns run in threads, in any order
 
 
 def test_run_starts_of_a_sorted_column_equal_a_run_length_pass():

@@ -19,7 +19,7 @@ import numpy as np
 import polars as pl
 from scipy.spatial import cKDTree
 
-from models.aviation.order import in_flight_order, run_starts
+from models.aviation.order import in_flight_order, run_ends, run_starts
 from models.units import EARTH_RADIUS_KM, M_PER_FT, M_PER_NM
 
 EARTH_RADIUS_NM = EARTH_RADIUS_KM * 1000.0 / M_PER_NM
@@ -124,7 +124,7 @@ def flights_table(tracks: pl.DataFrame) -> pl.DataFrame:
     src = in_flight_order(tracks)
     # flights are contiguous runs of rows: their end points are gathered by position, no grouping needed
     start = run_starts(src["flight_id"])
-    end = np.r_[start[1:], src.height][: len(start)] - 1
+    end = run_ends(start, src.height) - 1
     lat, lon, alt = (src[c].to_numpy() for c in ("lat", "lon", "alt_m"))
     ends = src.select("flight_id", "callsign", "icao24", first_ts="ts")[start].with_columns(
         last_ts=src["ts"].gather(end), n_points=pl.Series(end - start + 1, dtype=pl.Int64),

@@ -21,7 +21,7 @@ import polars as pl
 import pyarrow.parquet as pq
 
 from models.aviation import kernels
-from models.aviation.order import runs
+from models.aviation.order import run_ends, runs
 from models.aviation.resample import EARTH_RADIUS_M
 from models.parallel import together
 from models.units import M_PER_FT, MPS_PER_FPM, MPS_PER_KT
@@ -258,7 +258,7 @@ def normalise(df: pl.DataFrame, source: str) -> pl.DataFrame:
     )
     tidied = dict(zip(names, tidied))
     # which float columns hold NaN: one scan each, in one select (a scan instead of a copy where there is none)
-    floats = [c for c in df.columns if df[c].dtype.is_float()]
+    floats = [c for c in schema.columns.values() if c in df.columns and df[c].dtype.is_float()]
     has_nan = df.select(pl.col(floats).is_nan().any()).row(0, named=True) if floats else {}
     for canon, col in schema.columns.items():
         if col not in df.columns:
@@ -335,15 +335,15 @@ def _split_flights(raw: pl.DataFrame, row: np.ndarray, new: np.ndarray, callsign
     then), icao24, callsign (its last point's: a flight's rows all carry it but those before its aircraft's first
     callsign, null if none), flight_rank = rank of the name, points. Names are built once per flight."""
     first = np.flatnonzero(new)
-    last = np.r_[first[1:], len(row)][: len(first)] - 1
+    end = run_ends(first, len(row))
     firsts = pl.DataFrame(
         {"callsign": _callsigns(raw, callsign_row[first]), "icao24": raw["icao24"].gather(row[first]), "ts": raw["ts"].gather(row[first])}
     )
     flights = firsts.select(
         flight_id=pl.concat_str(pl.col("callsign").fill_null(pl.col("icao24")), "icao24", pl.col("ts").dt.strftime("%Y%m%dT%H%M"), separator="_"),
         icao24="icao24",
-        callsign=_callsigns(raw, callsign_row[last]),
-        points=pl.Series(np.diff(np.r_[first, len(row)])),
+        callsign=_callsigns(raw, callsign_row[end - 1]),
+        points=pl.Series(end - first),
     )
     # the rank of the name orders the flights by (flight_id, ts) comparing integers instead of strings
     return flights.with_columns(flight_rank=pl.col("flight_id").rank("dense"))

@@ -28,14 +28,20 @@ def runs(values: pl.Series, run_id: pl.Series | None = None) -> tuple[np.ndarray
     return run, np.searchsorted(run, np.arange(run[-1] + 1 if len(run) else 0, dtype=run.dtype))
 
 
+def run_ends(starts: np.ndarray, n: int) -> np.ndarray:
+    """One past the last row of every run, from the first rows `starts` of the runs of n rows."""
+    return np.r_[starts[1:], n][: len(starts)].astype(np.int64)
+
+
 def run_starts(values: pl.Series) -> np.ndarray:
     """The first row of every run of equal consecutive values. A column flagged as sorted (flight_id after
     `in_flight_order`) is not compared row by row: its distinct values are taken from every SAMPLE_EVERY-th row,
     found by binary search, and the result checked (a run between two samples that a sample missed would end
-    with another value than it starts with); a run-length pass over the rows where that fails or without the flag."""
+    with another value than it starts with); a run-length pass over the rows where that fails or without the flag.
+    int64 either way (one compiled signature for the kernels that take them)."""
     if values.flags["SORTED_ASC"] and values.len() and not values.null_count():
-        starts = values.search_sorted(values.gather_every(SAMPLE_EVERY).unique(maintain_order=True), side="left").to_numpy()
-        ends = np.r_[starts[1:], values.len()] - 1
-        if (values.gather(starts) == values.gather(ends)).all():
+        sample = values.gather_every(SAMPLE_EVERY).unique(maintain_order=True)
+        starts = values.search_sorted(sample, side="left").to_numpy().astype(np.int64)
+        if (values.gather(starts) == values.gather(run_ends(starts, values.len()) - 1)).all():
             return starts
-    return runs(values)[1]
+    return runs(values)[1].astype(np.int64, copy=False)

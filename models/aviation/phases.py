@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 import polars as pl
 
-from models.aviation.order import in_flight_order, run_starts
+from models.aviation.order import in_flight_order, run_ends, run_starts
 from models.units import EARTH_RADIUS_KM
 
 PHASES = ("climb", "cruise", "descent")
@@ -88,7 +88,7 @@ def assign_phases(
     # windows per flight over an integer run id (rows are grouped by flight) instead of hashing the string ids
     src = in_flight_order(tracks)
     starts = run_starts(src["flight_id"])
-    run = pl.Series(np.repeat(np.arange(len(starts), dtype=np.uint32), np.diff(np.r_[starts, src.height]))).set_sorted()
+    run = pl.Series(np.repeat(np.arange(len(starts), dtype=np.uint32), run_ends(starts, src.height) - starts)).set_sorted()
     runs = src.with_columns(_run=run)  # flagged sorted: polars' windows over it then skip hashing
     if cfg.method == "vertical":
         t = _vertical_bounds(runs, flights, cfg)

@@ -12,7 +12,7 @@ import numpy as np
 import polars as pl
 
 from models.aviation import kernels
-from models.aviation.order import in_flight_order, run_starts
+from models.aviation.order import in_flight_order, run_ends, run_starts
 from models.parallel import together
 from models.units import EARTH_RADIUS_KM
 
@@ -42,10 +42,8 @@ def resample(tracks: pl.DataFrame, dt_s: float = 20.0) -> pl.DataFrame:
     starts = run_starts(src["flight_id"])
     t = src["ts"].dt.epoch("us").to_numpy()
     ids = src["flight_id"].gather(starts)
-    first_us = t[starts]
-    last_us = t[np.r_[starts[1:] - 1, len(t) - 1]] if len(t) else t
-    owner, grid_us, grid_first = _grid(first_us, last_us, dt_us)
-    ends = np.r_[starts[1:], len(t)]
+    ends = run_ends(starts, len(t))
+    owner, grid_us, grid_first = _grid(t[starts], t[ends - 1], dt_us)
     for a in (t, starts, ends, grid_first, grid_us):  # one compiled signature whether polars lent memory or copied it
         a.setflags(write=False)
     row = kernels.grid_rows(t, starts, ends, grid_first, grid_us)

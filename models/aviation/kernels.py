@@ -53,31 +53,38 @@ def aircraft_time_order(ac, ts_us, missing, ts_lo, ts_hi, reason):
 
 @jit
 def _merge_runs(rows, ts_us):
-    """Sort `rows` by ts_us[row] in place, stably, by merging its runs of non-decreasing times pairwise (none: no
-    work; a few file runs of one aircraft: a few linear passes)."""
-    ends = [k for k in range(1, rows.size) if ts_us[rows[k]] < ts_us[rows[k - 1]]]
-    if not ends:
+    """Sort `rows` (increasing) by ts_us[row] in place, stably, by merging its runs of non-decreasing times (none: no
+    work) in one pass: the run whose next row comes first (least time, then the earliest run) gives every row up to
+    the other runs' next times at once, found by binary search. An aircraft's runs interleave in long stretches (41 of
+    the bundled file's 49 aircraft have 2-11 runs, its hours stored out of order; 196 stretches in all: 1.9 -> 0.8 ms
+    for all aircraft against merging run pairs row by row)."""
+    starts = [0]
+    for k in range(1, rows.size):
+        if ts_us[rows[k]] < ts_us[rows[k - 1]]:
+            starts.append(k)
+    if len(starts) == 1:
         return
-    ends.append(rows.size)
-    buf = np.empty_like(rows)
-    while len(ends) > 1:
-        merged = []
-        lo = 0
-        for i in range(0, len(ends), 2):
-            mid = ends[i]
-            hi = ends[i + 1] if i + 1 < len(ends) else mid
-            a, b = lo, mid
-            for k in range(lo, hi):  # the left run's row first on equal times: stable
-                if b >= hi or (a < mid and ts_us[rows[a]] <= ts_us[rows[b]]):
-                    buf[k] = rows[a]
-                    a += 1
-                else:
-                    buf[k] = rows[b]
-                    b += 1
-            merged.append(hi)
-            lo = hi
-        rows[:] = buf
-        ends = merged
+    n_runs = len(starts)
+    at = np.array(starts)  # each run's next row
+    end = np.array(starts[1:] + [rows.size])
+    t = ts_us[rows]
+    out = np.empty_like(rows)
+    k = 0
+    while k < rows.size:
+        c = -1
+        for i in range(n_runs):
+            if at[i] < end[i] and (c < 0 or t[at[i]] < t[at[c]]):
+                c = i
+        stop = end[c]  # c's rows before an earlier run's next time, up to (ties included) a later run's: stable
+        for i in range(n_runs):
+            if i < c and at[i] < end[i]:
+                stop = min(stop, at[c] + np.searchsorted(t[at[c] : stop], t[at[i]], side="left"))
+            elif i > c and at[i] < end[i]:
+                stop = min(stop, at[c] + np.searchsorted(t[at[c] : stop], t[at[i]], side="right"))
+        out[k : k + stop - at[c]] = rows[at[c] : stop]
+        k += stop - at[c]
+        at[c] = stop
+    rows[:] = out
 
 
 @jit(nogil=True)

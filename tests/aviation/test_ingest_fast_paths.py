@@ -142,10 +142,15 @@ def test_aircraft_time_order_equals_a_full_sort():
         want = rows.filter(~missing).sort("_ac", "ts", "row_index")["row_index"].to_numpy()
         np.testing.assert_array_equal(_order(rows["_ac"].to_numpy(), ts, missing), want)
     lengths = rng.integers(1, 200, 300)  # 300 runs of one aircraft (of 40), each in time order, overlapping in time
-    ac = np.repeat(rng.integers(0, 40, 300), lengths).astype(np.uint32)
-    ts = np.concatenate([np.sort(rng.integers(0, 10**6, k)) for k in lengths])
-    want = pl.DataFrame({"ac": ac, "ts": ts}).with_row_index().sort("ac", "ts", "index")["index"].to_numpy()
-    np.testing.assert_array_equal(_order(ac, ts, np.zeros(len(ac), dtype=bool)), want)
+    for span_us in (10**6, 50):  # with few equal times; with many, across runs (the first of them in row order first)
+        ac = np.repeat(rng.integers(0, 40, 300), lengths).astype(np.uint32)
+        ts = np.concatenate([np.sort(rng.integers(0, span_us, k)) for k in lengths])
+        want = pl.DataFrame({"ac": ac, "ts": ts}).with_row_index().sort("ac", "ts", "index")["index"].to_numpy()
+        np.testing.assert_array_equal(_order(ac, ts, np.zeros(len(ac), dtype=bool)), want)
+    # hours of one aircraft stored out of order (as in the bundled file), touching at their ends
+    hours = rng.permutation(24)
+    ts = np.concatenate([np.arange(h * 3600, (h + 1) * 3600 + 1, 7) for h in hours])
+    np.testing.assert_array_equal(_order(np.zeros(len(ts), dtype=np.uint32), ts, np.zeros(len(ts), dtype=bool)), np.argsort(ts, kind="stable"))
 
 
 def test_aircraft_time_order_with_extreme_codes_and_times():

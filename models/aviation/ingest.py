@@ -280,8 +280,9 @@ def normalise(df: pl.DataFrame, source: str) -> pl.DataFrame:
             if df[col].dtype == pl.String:  # polars cannot cast text to booleans: a traceback
                 raise IngestError(f"{source}: column '{col}' is text, expected true/false")
             e = e.cast(pl.Boolean, strict=False)
-        elif canon == "pos_time":  # epoch seconds as they come, else timestamps: both to epoch µs
-            e = (e * 1e6).round() if df[col].dtype == pl.Float64 else pl.lit(_timestamps(df[col], source).dt.epoch("us").cast(pl.Float64))
+        elif canon == "pos_time":  # epoch seconds as they come, else timestamps: both to epoch µs, only ever compared
+            # for equality (a repeated position), so not rounded (polars' round: 1 ms on the bundled file)
+            e = e * 1e6 if df[col].dtype == pl.Float64 else pl.lit(_timestamps(df[col], source).dt.epoch("us").cast(pl.Float64))
         else:
             if not df[col].dtype.is_numeric():
                 raise IngestError(f"{source}: column '{col}' is {df[col].dtype}, expected numbers")
@@ -459,8 +460,9 @@ def clean(raw: pl.DataFrame, source: str, cfg: IngestConfig = IngestConfig()) ->
     tracks = tracks.with_columns(names["flight_id"].set_sorted(), names["icao24"], callsign).select(
         "flight_id", "ts", "icao24", "callsign", "lat", "lon", "alt_m", "groundspeed_mps", "track_deg", "vertical_rate_mps"
     )
-    # rejects in row order: the positions of the nonzero reasons are already sorted
-    out = np.flatnonzero(reason)
+    # rejects in row order: the positions of the nonzero reasons are already sorted (found in a boolean mask: numpy's
+    # nonzero of the uint8 codes themselves: 0.8 against 0.2 ms on the bundled file)
+    out = np.flatnonzero(reason != 0)
     code = reason[out] - 1
     rejects = pl.concat(
         [

@@ -80,6 +80,23 @@ def test_phases_in_order_and_sensible(cleaned, method):
     assert (table["start_ts"] <= table["end_ts"]).all()
 
 
+@pytest.mark.parametrize("method", ["vertical", "regions"])
+def test_each_flights_phases_are_those_it_gets_alone(cleaned, method):
+    """The phases look at one flight's rows only (differences, first times and first hits within the flight): a flight
+    among all the others is phased as it is alone (the route's median duration comes from the flights table, whole in
+    both). The climb ends at half the route's duration at the
+    earliest, so that the time elapsed since the flight's first point decides where."""
+    tracks, flights = cleaned
+    cfg = PhaseConfig(method=method, climb_end_fraction=0.5)
+    grid = resample(tracks)
+    among_all = assign_phases(grid, flights, cfg, airports_table())
+    ids = grid["flight_id"].unique().sort()
+    for fid in ids.gather([0, 1, len(ids) // 2, len(ids) - 1]):
+        alone = assign_phases(grid.filter(pl.col("flight_id") == fid), flights, cfg, airports_table())
+        assert alone.equals(among_all.filter(pl.col("flight_id") == fid)), fid
+        assert alone["phase"].n_unique() >= 2
+
+
 def test_unknown_phase_method(cleaned):
     tracks, flights = cleaned
     with pytest.raises(ValueError, match="unknown phase method"):

@@ -6,11 +6,8 @@ Each system's assets package (`assets/<system>/__init__.py`) exposes ASSETS, CHE
 import dagster as dg
 
 from assets import applearn, aviation, dcb, trajectory, urban
-from models.memory import keep_freed_memory
 from pipelines.progress import progress_logger
 from warehouse.io_manager import ParquetIOManager
-
-keep_freed_memory()  # every process that loads the code location runs the steps: models/memory.py says why
 
 SYSTEMS = (aviation, trajectory, applearn, urban, dcb)
 

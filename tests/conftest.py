@@ -2,8 +2,12 @@
 
 from pathlib import Path
 
-import polars as pl
-import pytest
+from models.memory import keep_freed_memory
+
+keep_freed_memory()  # the test process set up as the pipeline's are (pipelines/__init__.py): before polars loads
+
+import polars as pl  # noqa: E402
+import pytest  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
 OPENSKY = REPO / "data" / "opensky" / "kaliningrad_2022-02-22_2022-03-05.parquet"

@@ -14,9 +14,8 @@ from pathlib import Path
 import pytest
 
 import benchlib as b
-from models.memory import keep_freed_memory
 
-keep_freed_memory()  # the process set up as the pipeline's are (pipelines/definitions.py)
+# the process is set up as the pipeline's are (allocators: models/memory.py) by tests/conftest.py, loaded first
 HOME_AT_START = str(Path(os.environ.get("TRAFFICLEARN_HOME", "var")).resolve())
 RESULTS: dict = {}
 BENCH_DIR = Path(__file__).resolve().parent
@@ -66,21 +65,21 @@ def bench_results() -> dict:
 
 @pytest.fixture(scope="session")
 def real_baseline(bench_results) -> b.ChainRun:
-    """Our chain on the 93 real flights (528,432 rows at 1 s): one warm-up run, then the best of 3."""
+    """Our chain on the 93 real flights (528,432 rows at 1 s): one warm-up run, then the best of b.REAL_REPEAT (5)."""
     b.run_chain(b.OPENSKY)  # warm-up: imports, openap airport table, polars thread pool
     load = b.warn_if_busy("raw->phases 93 real flights")
-    runs = [b.run_chain(b.OPENSKY) for _ in range(3)]
+    runs = [b.run_chain(b.OPENSKY) for _ in range(b.REAL_REPEAT)]
     best = min(runs, key=lambda r: r.total)
     bench_results["ours_real_93"] = {
         **b.chain_record(best),
         "runs_total_s": [round(r.total, 3) for r in runs],
-        "measure": "best of 3 after one warm-up run",
+        "measure": f"best of {b.REAL_REPEAT} after one warm-up run",
         "loadavg_before": round(load, 2),
         "input": f"{b.OPENSKY.relative_to(b.REPO)} (1 s OpenSky state vectors)",
     }
     print(
         f"\nBENCH raw->phases {best.flights} real flights ({best.rows_read:,} rows at 1 s): {b.fmt_s(best.total)} "
-        f"(best of 3; CPU {b.fmt_s(best.cpu_s)}; ingest {b.fmt_s(best.seconds['ingest'])}, flights {b.fmt_s(best.seconds['flights_table'])}, "
+        f"(best of {b.REAL_REPEAT}; CPU {b.fmt_s(best.cpu_s)}; ingest {b.fmt_s(best.seconds['ingest'])}, flights {b.fmt_s(best.seconds['flights_table'])}, "
         f"20 s grid {b.fmt_s(best.seconds['resample_20s'])}, phases {b.fmt_s(best.seconds['phases'])}; "
         f"{1000 * best.total / best.flights:.1f} ms/flight)"
     )

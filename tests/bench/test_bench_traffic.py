@@ -7,7 +7,7 @@ see benchlib.traffic_python) with max_workers = the usable cores; its import (~4
 and both sides get a warm-up first. Ratio = traffic's time / ours on the identical file.
 
 Compared:
-  * the 93 real flights (528,432 rows at 1 s): ours best of 3, traffic best of 2;
+  * the 93 real flights (528,432 rows at 1 s): each side's best of 5 (benchlib.REAL_REPEAT);
   * a scaled subset of >= TRAFFICLEARN_BENCH_TRAFFIC_FLIGHTS (500) flights, built like the 10,000-flight
     set (perturbed copies, every 5th second): ours best of 2, traffic one run.
 """
@@ -63,11 +63,11 @@ def _compare(label: str, ours_s: float, ours_flights: int, tr: dict, bench_resul
 
 def test_ours_vs_traffic_real_flights(traffic_exe, real_baseline, bench_results):
     load = b.warn_if_busy("traffic on 93 real flights")
-    tr = b.run_traffic(traffic_exe, b.OPENSKY, repeat=2, workers=WORKERS)
+    tr = b.run_traffic(traffic_exe, b.OPENSKY, repeat=b.REAL_REPEAT, workers=WORKERS)
     ratio = _compare(
         f"the {real_baseline.flights} real flights ({real_baseline.rows_read:,} rows at 1 s)",
         real_baseline.total, real_baseline.flights, tr, bench_results, "ours_vs_traffic_real_93",
-        {"ours_grid_rows": real_baseline.grid_rows, "measure": "ours best of 3, traffic best of 2, each after a warm-up"}, load,
+        {"ours_grid_rows": real_baseline.grid_rows, "measure": f"each side's best of {b.REAL_REPEAT} after a warm-up"}, load,
     )
     assert tr["flights"] == real_baseline.flights, "both sides should find the same flights"
     assert ratio >= b.TARGET_TRAFFIC_RATIO, f"ours is {ratio:.1f}x faster than traffic on the real flights, target >= 20x"

@@ -13,7 +13,8 @@ polars allocates through its own jemalloc, which it tells to hand freed pages ba
 1,500-3,000 faults per chain in cleaning alone, 5-10 ms of a 15-20 ms step. polars appends the options found in
 `_RJEM_MALLOC_CONF` to its own when it loads (pola-rs/polars#18088, the later option wins): set here unless polars is
 loaded already, so call this before anything imports polars (pipelines/__init__.py, tests/conftest.py). Child
-processes inherit them; a value the user set is kept.
+processes inherit them; a value the user set is kept. The pages stay with the process until it ends: `make demo`
+runs every group in one process, whose peak then holds through the later groups.
 """
 
 import ctypes
@@ -29,8 +30,8 @@ POLARS_ALLOCATOR_CONF = "dirty_decay_ms:-1,muzzy_decay_ms:-1"  # freed pages sta
 
 
 def keep_freed_memory() -> bool:
-    """Set glibc's thresholds for this process (once is enough; the pipeline's processes call it when they load the
-    code location), and polars' allocator's where polars is not loaded yet. True where glibc took the setting;
+    """Set glibc's thresholds for this process (once is enough; the pipeline's processes call it when they import
+    `pipelines`), and polars' allocator's where polars is not loaded yet. True where glibc took the setting;
     elsewhere (not Linux or not glibc, e.g. musl) glibc's part changes nothing."""
     if "polars" not in sys.modules:
         os.environ.setdefault(POLARS_ALLOCATOR_ENV, POLARS_ALLOCATOR_CONF)

@@ -63,7 +63,7 @@ print(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before)
 
 def test_polars_freed_memory_is_reused_after_a_pause():
     """polars tells its jemalloc to hand freed pages back within 0.5-1 s: by default each round after a pause faults
-    its ~4,000 pages in again; with the setting, made before polars loads, they stay for reuse."""
+    its thousands of pages in again; with the setting, made before polars loads, they stay for reuse."""
     env = {k: v for k, v in os.environ.items() if k != "_RJEM_MALLOC_CONF"}  # this process's own setting not inherited
     faults = {
         mode: int(subprocess.run([sys.executable, "-c", POLARS_CHURN, mode], capture_output=True, text=True, check=True, env=env).stdout)

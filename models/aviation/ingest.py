@@ -28,6 +28,7 @@ from models.units import M_PER_FT, MPS_PER_FPM, MPS_PER_KT
 
 UNIT_SAMPLE_ROWS = 50_000
 TS_DTYPE = pl.Datetime("us", "UTC")
+MAX_MS = (2**63 - 1) // 1000  # the most milliseconds that are an int64 of µs
 # a time outside these years is a decoding error; rejected before the sort, it cannot overflow the kernels' time
 # differences nor a flight name's date (polars panics on a year past 262,143)
 TS_RANGE_US = (0, 4_102_444_800_000_000)  # 1970-01-01 to 2100-01-01
@@ -197,9 +198,12 @@ def _timestamps(col: pl.Series, source: str) -> pl.Series:
         return parsed.cast(TS_DTYPE)
     if isinstance(col.dtype, pl.Datetime):
         # the stored values are UTC instants in any zone (a naive column is read as UTC): only the unit changes, by
-        # integer arithmetic that floors as polars' cast does (1.2 -> 0.4 ms on the bundled file's 528,432 rows)
+        # integer arithmetic that floors as polars' cast does (1.2 -> 0.4 ms on the bundled file's 528,432 rows); ms
+        # beyond µs's int64 range (year ±292,000: a decoding error) are clipped first, else they would wrap into range
         unit, values = col.dtype.time_unit, col.to_physical()
-        return (values // 1000 if unit == "ns" else values * 1000 if unit == "ms" else values).cast(TS_DTYPE)
+        if unit == "ms":
+            values = values.clip(-MAX_MS, MAX_MS) * 1000
+        return (values // 1000 if unit == "ns" else values).cast(TS_DTYPE)
     if col.dtype.is_numeric():
         med = col.cast(pl.Float64).drop_nans().median()
         factor = 1_000 if med is not None and med > 1e11 else 1_000_000  # epoch ms vs epoch s
@@ -213,7 +217,8 @@ def _tidy_names(names: pl.Series, lower: bool) -> tuple[pl.Series, pl.Series]:
 
     Both come from the distinct names of the runs of equal rows: state vectors arrive in runs of one aircraft
     (the bundled file: 528,432 rows, 265 runs), and hashing a few hundred run values instead of every row is
-    ~10x cheaper; the rows then take their run's code (and tidy name) in one gather by the run ids."""
+    ~10x cheaper; the rows then take their run's code repeated by the runs' lengths (and their tidy name, where tidying
+    changed one, in one gather by the run ids)."""
     run = names.rle_id()
     _, starts = runs(names, run)
     in_runs = len(starts) * 4 < len(names)  # else (e.g. rows sorted by time) the rows are their own values
@@ -281,7 +286,8 @@ def normalise(df: pl.DataFrame, source: str) -> pl.DataFrame:
                 raise IngestError(f"{source}: column '{col}' is text, expected true/false")
             e = e.cast(pl.Boolean, strict=False)
         elif canon == "pos_time":  # epoch seconds as they come, else timestamps: both to epoch µs, only ever compared
-            # for equality (a repeated position), so not rounded (polars' round: 1 ms on the bundled file)
+            # for equality (a repeated position), so not rounded (polars' round: 1 ms on the bundled file): two position
+            # times less than 0.5 µs apart are two positions
             e = e * 1e6 if df[col].dtype == pl.Float64 else pl.lit(_timestamps(df[col], source).dt.epoch("us").cast(pl.Float64))
         else:
             if not df[col].dtype.is_numeric():

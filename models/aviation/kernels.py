@@ -16,6 +16,7 @@ from models.jit import jit
 REASONS = ("missing_value", "duplicate_row", "on_ground", "out_of_range", "repeated_position", "speed_spike", "short_segment")
 MISSING_VALUE, DUPLICATE_ROW, ON_GROUND, OUT_OF_RANGE, REPEATED_POSITION, SPEED_SPIKE, SHORT_SEGMENT = range(1, len(REASONS) + 1)
 FAST, STEEP = 1, 2  # a leg's bits in `speed_spikes`
+MAX_MERGED_RUNS = 16  # an aircraft's runs of time-ordered rows merged stretch by stretch; more: a sort (`_merge_runs`)
 
 
 @jit
@@ -25,8 +26,8 @@ def aircraft_time_order(ac, ts_us, missing, ts_lo, ts_hi, reason):
     A row with a missing value gets MISSING_VALUE, one with a time outside [ts_lo, ts_hi) OUT_OF_RANGE (a decoding
     error, which would overflow the later time differences), written into reason[row] (all 0 before). The others: a
     counting sort by aircraft code (stable: rows stay in file order), then a stable sort by time of each aircraft whose
-    rows are not already in time order: state vectors come in runs of one aircraft in time order, so most aircraft
-    need none (the bundled file: 6 of 49)."""
+    rows are not already in time order (`_merge_runs`; state vectors come in runs of one aircraft in time order: the
+    bundled file's aircraft have 1-11 such runs, 8 of its 49 just one)."""
     n_aircraft = 0
     for r in range(ac.size):
         if missing[r]:
@@ -57,7 +58,8 @@ def _merge_runs(rows, ts_us):
     work) in one pass: the run whose next row comes first (least time, then the earliest run) gives every row up to
     the other runs' next times at once, found by binary search. An aircraft's runs interleave in long stretches (41 of
     the bundled file's 49 aircraft have 2-11 runs, its hours stored out of order; 196 stretches in all: 1.9 -> 0.8 ms
-    for all aircraft against merging run pairs row by row)."""
+    for all aircraft against merging run pairs row by row). Each stretch looks at every run, so with more than
+    MAX_MERGED_RUNS (rows in no time order: newest first, shuffled, feeds interleaved) a stable sort does it instead."""
     starts = [0]
     for k in range(1, rows.size):
         if ts_us[rows[k]] < ts_us[rows[k - 1]]:
@@ -65,9 +67,12 @@ def _merge_runs(rows, ts_us):
     if len(starts) == 1:
         return
     n_runs = len(starts)
+    t = ts_us[rows]
+    if n_runs > MAX_MERGED_RUNS:  # stable: equal times keep their rows' (increasing) order
+        rows[:] = rows[np.argsort(t, kind="mergesort")]
+        return
     at = np.array(starts)  # each run's next row
     end = np.array(starts[1:] + [rows.size])
-    t = ts_us[rows]
     out = np.empty_like(rows)
     k = 0
     while k < rows.size:

@@ -2,6 +2,8 @@
 the one-key (aircraft, ts) sort and its fallback, name codes from runs, the flights table's end points, the Parquet
 file read in two halves at once, and the compiled interpolation of the 20 s grid."""
 
+import time
+
 import numba
 import pytest
 import numpy as np
@@ -10,7 +12,7 @@ import polars as pl
 from models.aviation.airports import flights_table
 from models.aviation.order import SAMPLE_EVERY, in_flight_order, run_starts, runs
 from models.aviation import kernels
-from models.aviation.ingest import _tidy_names, _used_columns, clean, ingest, normalise, read_source
+from models.aviation.ingest import TS_RANGE_US, _tidy_names, _timestamps, _used_columns, clean, ingest, normalise, read_source
 from models.aviation.resample import resample
 from models.parallel import together
 from models.aviation.resample import EARTH_RADIUS_M
@@ -147,10 +149,39 @@ def test_aircraft_time_order_equals_a_full_sort():
         ts = np.concatenate([np.sort(rng.integers(0, span_us, k)) for k in lengths])
         want = pl.DataFrame({"ac": ac, "ts": ts}).with_row_index().sort("ac", "ts", "index")["index"].to_numpy()
         np.testing.assert_array_equal(_order(ac, ts, np.zeros(len(ac), dtype=bool)), want)
-    # hours of one aircraft stored out of order (as in the bundled file), touching at their ends
-    hours = rng.permutation(24)
-    ts = np.concatenate([np.arange(h * 3600, (h + 1) * 3600 + 1, 7) for h in hours])
+    # hours of one aircraft stored out of order (as in the bundled file), each ending at the next one's first time
+    hours = rng.permutation(12)
+    ts = np.concatenate([np.arange(h * 3600, (h + 1) * 3600 + 1, 8) for h in hours])
+    assert len(np.unique(ts)) < len(ts)
     np.testing.assert_array_equal(_order(np.zeros(len(ts), dtype=np.uint32), ts, np.zeros(len(ts), dtype=bool)), np.argsort(ts, kind="stable"))
+
+
+@pytest.mark.parametrize("layout", ["newest_first", "shuffled", "two_feeds"])
+def test_aircraft_time_order_of_rows_in_no_time_order(layout):
+    """One aircraft's 200,000 rows in runs of one or two rows (a file stored newest first, shuffled, or two feeds
+    interleaved): a stable sort, in well under a second (merging run by run looked at every run for each stretch:
+    ~15 s for 80,000 rows newest first)."""
+    rng = np.random.default_rng(11)
+    n = 200_000
+    ts = {
+        "newest_first": np.arange(n)[::-1] // 3,  # equal times in threes
+        "shuffled": rng.integers(0, n // 4, n),
+        "two_feeds": np.ravel(np.c_[np.arange(n // 2), np.arange(n // 2) + 5]),
+    }[layout].astype(np.int64)
+    _order(np.zeros(3, dtype=np.uint32), np.array([2, 1, 0]), np.zeros(3, dtype=bool))  # compiled (or loaded) first
+    start = time.perf_counter()
+    order = _order(np.zeros(n, dtype=np.uint32), ts, np.zeros(n, dtype=bool))
+    assert time.perf_counter() - start < 2.0
+    np.testing.assert_array_equal(order, np.argsort(ts, kind="stable"))
+
+
+def test_timestamps_in_ms_beyond_range_stay_out_of_range():
+    """Milliseconds whose µs do not fit an int64 (a decoding error) are clipped, not wrapped into the years of real
+    data: the row rules then reject them as out of range."""
+    ms = pl.Series([2**62, 18_448_389_573_709_551, -(2**62), 1_645_499_999_999, None], dtype=pl.Int64).cast(pl.Datetime("ms"))
+    us = _timestamps(ms, "x").to_physical().to_list()
+    assert us[4] is None and us[3] == 1_645_499_999_999_000
+    assert all(not TS_RANGE_US[0] <= v < TS_RANGE_US[1] for v in us[:3])
 
 
 def test_aircraft_time_order_with_extreme_codes_and_times():

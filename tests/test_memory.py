@@ -8,7 +8,10 @@ import sys
 
 import pytest
 
-from models.memory import POLARS_ALLOCATOR_CONF, keep_freed_memory
+from models.memory import POLARS_ALLOCATOR_CONF, POLARS_ALLOCATOR_ENV, keep_freed_memory
+
+# the subprocesses' environment without this process's own allocator setting (tests/conftest.py makes it)
+ENV_WITHOUT_SETTING = {k: v for k, v in os.environ.items() if k != POLARS_ALLOCATOR_ENV}
 
 CHURN = """
 import resource, sys
@@ -64,9 +67,8 @@ print(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before)
 def test_polars_freed_memory_is_reused_after_a_pause():
     """polars tells its jemalloc to hand freed pages back within 0.5-1 s: by default each round after a pause faults
     its thousands of pages in again; with the setting, made before polars loads, they stay for reuse."""
-    env = {k: v for k, v in os.environ.items() if k != "_RJEM_MALLOC_CONF"}  # this process's own setting not inherited
     faults = {
-        mode: int(subprocess.run([sys.executable, "-c", POLARS_CHURN, mode], capture_output=True, text=True, check=True, env=env).stdout)
+        mode: int(subprocess.run([sys.executable, "-c", POLARS_CHURN, mode], capture_output=True, text=True, check=True, env=ENV_WITHOUT_SETTING).stdout)
         for mode in ("default", "keep")
     }
     assert faults["keep"] * 10 < faults["default"], faults
@@ -75,7 +77,6 @@ def test_polars_freed_memory_is_reused_after_a_pause():
 def test_the_pipeline_sets_polars_allocator_before_polars_loads():
     """Loading the code location (as Dagster's processes do) sets the option before polars reads it: polars, when it
     loads, puts its own options before ours (the later ones win), which it can only do if ours were there already."""
-    env = {k: v for k, v in os.environ.items() if k != "_RJEM_MALLOC_CONF"}
-    code = "import os, pipelines.definitions; print(os.environ['_RJEM_MALLOC_CONF'])"
-    conf = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env).stdout.strip()
+    code = f"import os, pipelines.definitions; print(os.environ['{POLARS_ALLOCATOR_ENV}'])"
+    conf = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=ENV_WITHOUT_SETTING).stdout.strip()
     assert conf.endswith("," + POLARS_ALLOCATOR_CONF), conf

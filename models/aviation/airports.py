@@ -131,7 +131,7 @@ def flights_table(tracks: pl.DataFrame) -> pl.DataFrame:
     )
     # both ends of every flight in one airport search: the first points looking back from 10 points in, the last
     # ones looking ahead from 10 points before (no heading on shorter flights): reported track can be missing at the ends
-    long = np.r_[end - start >= 10, end - start >= 10]
+    long = np.tile(end - start >= 10, 2)
     at, inner = np.r_[start, end], np.where(long, np.r_[start + 10, end - 10], 0)
     lat_at, lon_at = lat[at], lon[at]
     heading = _bearing_deg(np.where(long, lat[inner], np.nan), np.where(long, lon[inner], np.nan), lat_at, lon_at)

@@ -8,7 +8,7 @@ from models.dcb.train import METHODS
 from warehouse.storage import read_table
 
 TABLES = ["dcb_sectors", "dcb_flights", "dcb_sector_entries", "dcb_demand_rejects", "dcb_demand_summary", "dcb_cases",
-          "dcb_hotspots", "dcb_reference", "dcb_delays", "dcb_results", "dcb_summary"]
+          "dcb_hotspots", "dcb_reference", "dcb_delays", "dcb_results", "dcb_summary", "dcb_comparisons"]
 
 
 @dg.asset_check(asset="dcb_demand_summary", description="nothing silently dropped: read = kept + rejected, and the quarantine holds every rejected row")

@@ -4,8 +4,9 @@ import dagster as dg
 import numpy as np
 import polars as pl
 
+from assets.comparisons import comparisons_output
 from assets.dcb.cases import problems
-from models.dcb.experiment import results, summary, summary_markdown
+from models.dcb.experiment import comparisons, results, summary, summary_markdown
 from models.dcb.plots import box_plots, delay_histogram, demand_vs_capacity
 from models.dcb.train import METHODS
 from warehouse.artifacts import save_plot
@@ -48,3 +49,8 @@ def dcb_summary(dcb_results: pl.DataFrame) -> dg.Output:
     if learners:
         _plot(metadata, "dcb_box_plots", box_plots(dcb_results, learners))
     return dg.Output(summ, metadata=metadata)
+
+
+@dg.asset(group_name="dcb", description="HCMARL against CMARL and MIRL per case, paired over training seeds (sign-flip test).")
+def dcb_comparisons(context: dg.AssetExecutionContext, dcb_results: pl.DataFrame) -> dg.Output:
+    return comparisons_output(context, comparisons(dcb_results))

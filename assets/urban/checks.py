@@ -7,7 +7,7 @@ from assets.checks import schema_checks
 from models.urban.network import SIGNAL_FREE_TYPES, junction_census
 from warehouse.storage import read_table
 
-TABLES = ["urban_routes", "urban_scenarios", "urban_training", "urban_results", "urban_trajectories", "urban_thesis_tables"]
+TABLES = ["urban_routes", "urban_scenarios", "urban_training", "urban_results", "urban_trajectories", "urban_thesis_tables", "urban_comparisons"]
 
 
 @dg.asset_check(asset="urban_routes", description="every network is unsignalized: no traffic lights, only right_before_left junctions")

@@ -1,4 +1,5 @@
-"""Evaluation on held-out copies against SUMO's IDM and Krauss; trajectories, Fig 4.4, rerun replay, thesis tables."""
+"""Evaluation on held-out copies against SUMO's IDM and Krauss; paired comparisons over seeds; trajectories, Fig 4.4,
+rerun replay, thesis tables."""
 
 import time
 
@@ -6,9 +7,10 @@ import dagster as dg
 import polars as pl
 from pydantic import Field
 
+from assets.comparisons import comparisons_output
 from models.parallel import ProcessPool, usable_cores
 from models.markdown import markdown_table
-from models.urban.experiments import EVALUATION_METHODS, evaluation_jobs, results_rows, run_job, thesis_markdown, thesis_tables, trajectories_rows
+from models.urban.experiments import EVALUATION_METHODS, comparisons, evaluation_jobs, results_rows, run_job, thesis_markdown, thesis_tables, trajectories_rows
 from warehouse.artifacts import artifact_path, save_plot
 
 
@@ -44,6 +46,11 @@ def urban_results(context: dg.AssetExecutionContext, config: EvaluationConfig, u
 def urban_thesis_tables(urban_results: pl.DataFrame, urban_scenarios: pl.DataFrame) -> dg.Output:
     df = thesis_tables(urban_results, urban_scenarios)
     return dg.Output(df, metadata={"tables": dg.MetadataValue.md(thesis_markdown(df))})
+
+
+@dg.asset(group_name="urban", description="i-MARL and the safety layer against col-MARL, paired over training seeds (sign-flip test).")
+def urban_comparisons(context: dg.AssetExecutionContext, urban_results: pl.DataFrame) -> dg.Output:
+    return comparisons_output(context, comparisons(urban_results))
 
 
 @dg.asset(group_name="urban", description="1 s trajectories of one evaluation copy per trained scenario and method; Fig 4.4 profiles; rerun replay.")

@@ -11,9 +11,13 @@ from models.dcb.airspace import GeoJSONSectorisation, GridSectorisation, SectorF
 from models.dcb.cmarl import peer_edges
 from models.dcb.demand import DemandError, adsb_demand, so6_demand
 from models.markdown import markdown_table
+from models.stats import paired_comparisons
 from models.dcb.problem import DELAY_COST_EUR_PER_MIN, REGULATED_MIN, DCBProblem, aircraft_class, base_capacities, hotspot_table, scaled_capacities
 
 METRICS = ("avg_delay_min", "regulated_flights", "total_delay_min", "hotspots_left", "gap_to_optimum", "runtime_s")
+# the issue's claims about HCMARL, paired over seeds: (method, reference) and the metrics compared
+COMPARISONS = (("HCMARL", "CMARL"), ("HCMARL", "MIRL"))
+COMPARED_METRICS = ("regulated_flights", "total_delay_min", "avg_delay_min", "gap_to_optimum")
 
 
 def load_demand(path: str | Path, min_points: int = 6, so6_step_s: float = 30.0):
@@ -135,6 +139,11 @@ def summary(results_df: pl.DataFrame) -> pl.DataFrame:
         n_seeds=pl.len().cast(pl.Int64), mean=pl.col("value").mean(), std=pl.col("value").std(), median=pl.col("value").median(),
         iqr=pl.col("value").quantile(0.75, "linear") - pl.col("value").quantile(0.25, "linear"),
     ).with_columns(pl.col("mean", "std", "median", "iqr").cast(pl.Float64))
+
+
+def comparisons(results_df: pl.DataFrame) -> pl.DataFrame:
+    """COMPARISONS per case, paired over the training seeds both learners ran (models.stats.paired_comparisons)."""
+    return paired_comparisons(results_df, "case", COMPARISONS, COMPARED_METRICS)
 
 
 def summary_markdown(summ: pl.DataFrame, metrics=("avg_delay_min", "regulated_flights", "total_delay_min", "hotspots_left", "gap_to_optimum")) -> str:

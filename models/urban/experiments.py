@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
+from models.stats import paired_comparisons
 from models.urban.network import UrbanInputError, artificial_network, enumerate_routes, junction_census, osm_network, sumo_network
 from models.urban.scenarios import Demand, write_copy
 from models.urban.sim import ScenarioFiles
@@ -242,6 +243,20 @@ def thesis_markdown(tables: pl.DataFrame) -> str:
             lines.append("| " + " | ".join(cells) + " |")
         parts.append("\n".join(lines))
     return "\n\n".join(parts)
+
+
+# --- paired comparisons over training seeds ---------------------------------------------------------
+
+# (method, reference): Table 4.3's question (does the collision term matter: i-MARL against col-MARL) and what the
+# safety layer changes on the same policies
+COMPARISONS = (("i_marl", "col_marl"), ("col_marl_shield", "col_marl"))
+COMPARED_METRICS = ("collisions", "teleports", "success", "avg_travel_time_s")
+
+
+def comparisons(results: pl.DataFrame) -> pl.DataFrame:
+    """COMPARISONS on every scenario where both methods were evaluated, paired over training seeds on the held-out copies
+    both ran (models.stats.paired_comparisons). One seed gives p = 1: a difference, not evidence."""
+    return paired_comparisons(results, "scenario", COMPARISONS, COMPARED_METRICS, replicate="copy")
 
 
 # --- evaluation runs (in worker processes) ---------------------------------------------------------

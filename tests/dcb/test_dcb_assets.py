@@ -37,6 +37,11 @@ def test_dcb_assets_materialise_on_a_slice(tmp_path):
     assert read_table("dcb_delays").height == 2 * 2 * flights.height
     summ = read_table("dcb_summary").filter((pl.col("method") == "MIRL") & (pl.col("metric") == "total_delay_min")).row(0, named=True)
     assert summ["n_seeds"] == 2 and summ["mean"] == res.filter(pl.col("method") == "MIRL")["total_delay_min"].mean()
+    # HCMARL against MIRL (CMARL was not run), paired over the 2 seeds: the differences of dcb_results' rows
+    comp = read_table("dcb_comparisons").filter(pl.col("metric") == "regulated_flights").row(0, named=True)
+    by_seed = {m: res.filter(pl.col("method") == m).sort("seed")["regulated_flights"].to_numpy() for m in ("HCMARL", "MIRL")}
+    assert (comp["reference"], comp["seeds"]) == ("MIRL", 2) and comp["mean_diff"] == (by_seed["HCMARL"] - by_seed["MIRL"]).mean()
+    assert comp["p_two_sided"] in (0.5, 1.0)  # 2 seeds allow no smaller p
     checks = {e.check_name: e.passed for e in result.get_asset_check_evaluations()}
     assert checks["demand_rows_accounted"] and checks["optimum_is_lower_bound"] and checks["entries_consistent"]
     # the default read-out repairs what the policies leave: no run with a hotspot; the raw greedy policy is reported beside it

@@ -2,7 +2,7 @@
 
 import pyarrow as pa
 
-from warehouse.table import TS, Table, col
+from warehouse.table import TS, Table, col, comparison_columns
 
 _CASE = col("case", pa.string(), "", "evaluation case, e.g. cap90 = every sector at 90 % of its base capacity")
 _METHOD = col("method", pa.string(), "", "MIRL, CMARL, HCMARL, stHMIRL, sHMIRL, tHMIRL (learners), optimum (integer program), FCFS or readout_only (the learners' read-out of zero delays)")
@@ -123,6 +123,16 @@ TABLES: list[Table] = [
             col("gap_to_optimum", pa.float64(), "fraction",
                 "(total_delay_min - optimum's) / optimum's; null when the optimum is 0 or the case has none", nullable=True),
             _RUNTIME,
+        ),
+    ),
+    Table(
+        "dcb_comparisons",
+        "HCMARL against CMARL and against MIRL per case, paired over training seeds (exact sign-flip test): the issue's "
+        "\"HCMARL has fewer regulated flights than CMARL and MIRL\" as a test.",
+        (
+            _CASE,
+            *comparison_columns("HCMARL", "CMARL or MIRL", "regulated_flights, total_delay_min (min), avg_delay_min (min) or "
+                                "gap_to_optimum (fraction), as in dcb_results", ""),
         ),
     ),
     Table(

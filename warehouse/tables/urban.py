@@ -2,7 +2,7 @@
 
 import pyarrow as pa
 
-from warehouse.table import Table, col
+from warehouse.table import Table, col, comparison_columns
 
 _SCENARIO = col("scenario", pa.string(), "", "scenario name, e.g. sc1, sc4_x3 (knowledge reuse copy), real_mr")
 _COPY = col("copy", pa.int64(), "", "seeded copy of the scenario (0-based)")
@@ -100,6 +100,17 @@ TABLES: list[Table] = [
             col("collided", pa.bool_(), "", "the vehicle was removed in a collision during the episode"),
             col("teleported", pa.bool_(), "", "SUMO teleported the vehicle (stuck 120 s) during the episode: its position jumps "
                 "and the acceleration SUMO reports for that second is meaningless (e.g. -200 m/s²)"),
+        ),
+    ),
+    Table(
+        "urban_comparisons",
+        "Paired comparisons over training seeds on the same held-out copies (exact sign-flip test): i-MARL against "
+        "col-MARL (Table 4.3's question) and col-MARL with the safety layer against without.",
+        (
+            _SCENARIO,
+            *comparison_columns("i_marl or col_marl_shield", "col_marl",
+                                "collisions, teleports (per run), success (share of runs) or avg_travel_time_s (s)",
+                                "; each seed's metric is its mean over the held-out copies both ran"),
         ),
     ),
     Table(

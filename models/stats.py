@@ -69,4 +69,3 @@ def paired_comparisons(runs: pl.DataFrame, group: str, pairs, metrics, replicate
                     "std_diff": float(np.std(d, ddof=1)) if len(d) > 1 else None,
                     "seeds_higher": int((d > 0).sum()), "seeds_lower": int((d < 0).sum()), "p_two_sided": sign_flip_p(d)})
     return pl.DataFrame(rows, schema={group: pl.String, **COMPARISON_SCHEMA})
-

@@ -19,7 +19,7 @@ def results(rows):
         for s, c, m, k, n, ok, t in rows], schema_overrides={"avg_travel_time_s": pl.Float64})
 
 
-# i-MARL collides more on every seed; seed 2's copy 3 was run by i-MARL only (not a pair); IDM has no seeds to pair
+# i-MARL collides more on every seed; seed 2's copy 3 was run by i-MARL only (not a pair); IDM is in no compared pair
 ROWS = [
     ("sc1", 2, "col_marl", 0, 0, True, 16.0), ("sc1", 3, "col_marl", 0, 1, False, 17.0),
     ("sc1", 2, "i_marl", 0, 1, False, 18.0), ("sc1", 3, "i_marl", 0, 2, False, None),

@@ -48,14 +48,18 @@ def paired_comparisons(runs: pl.DataFrame, group: str, pairs, metrics, replicate
     """Each (method, reference) of `pairs` in each `group` (a scenario, a case) where both ran: per seed, each metric's
     mean over the `replicate` rows both methods have (e.g. held-out copies; None: one row per seed), then the paired
     difference method − reference over the seeds both have, its mean ± std, how many seeds are higher / lower, and
-    sign_flip_p. A metric null for a seed (e.g. no travel time) leaves that seed out of that metric's pairs."""
+    sign_flip_p. A replicate with the metric null on either side counts on neither; a seed with no replicate left is
+    out of that metric's pairs."""
     keys = [group, "seed", *([replicate] if replicate else [])]
     values = [pl.col(m).cast(pl.Float64) for m in metrics]
     rows = []
     for method, reference in pairs:
         both = runs.filter(pl.col("method") == method).select(*keys, *values).join(
             runs.filter(pl.col("method") == reference).select(*keys, *values), on=keys, suffix="_ref")
-        per_seed = both.group_by(group, "seed").agg(pl.exclude(keys).mean()).sort(group, "seed")
+        # a replicate where either side has no value (e.g. no vehicle arrived) is left out on both sides
+        paired = [pl.when(pl.col(m).is_not_null() & pl.col(f"{m}_ref").is_not_null()).then(pl.col(c)).alias(c)
+                  for m in metrics for c in (m, f"{m}_ref")]
+        per_seed = both.with_columns(paired).group_by(group, "seed").agg(pl.exclude(keys).mean()).sort(group, "seed")
         for (where,), g in per_seed.group_by(group, maintain_order=True):
             for metric in metrics:
                 pair = g.drop_nulls([metric, f"{metric}_ref"])

@@ -43,8 +43,8 @@ def test_paired_differences_over_seeds_on_shared_copies():
     s = df.filter(pl.col("metric") == "success").row(0, named=True)
     assert s["mean_diff"] == pytest.approx(((0 - 0.5) + (0.5 - 1) + (0 - 1)) / 3) and s["seeds_lower"] == 3
     t = df.filter(pl.col("metric") == "avg_travel_time_s").row(0, named=True)
-    # seed 0: i-MARL's copy 3 has no arrival (null), so its mean is copy 2's 18.0 against col-MARL's 16.5
-    assert t["seeds"] == 3 and t["method_mean"] == pytest.approx((18.0 + 16.0 + 20.0) / 3)
+    # seed 0: i-MARL's copy 3 has no arrival (null), so copy 3 counts on neither side: 18.0 against 16.0
+    assert t["seeds"] == 3 and t["method_mean"] == pytest.approx((18.0 + 16.0 + 20.0) / 3) and t["reference_mean"] == pytest.approx(16.0)
     assert df.filter(pl.col("metric") == "teleports")["p_two_sided"].to_list() == [1.0]  # no difference at all
 
 

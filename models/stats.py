@@ -44,7 +44,8 @@ COMPARISON_SCHEMA = {"method": pl.String, "reference": pl.String, "metric": pl.S
                      "seeds_lower": pl.Int64, "p_two_sided": pl.Float64}
 
 
-def paired_comparisons(runs: pl.DataFrame, group: str, pairs, metrics, replicate: str | None = None) -> pl.DataFrame:
+def paired_comparisons(runs: pl.DataFrame, group: str, pairs: tuple[tuple[str, str], ...], metrics: tuple[str, ...],
+                       replicate: str | None = None) -> pl.DataFrame:
     """Each (method, reference) of `pairs` in each `group` (a scenario, a case) where both ran: per seed, each metric's
     mean over the `replicate` rows both methods have (e.g. held-out copies; None: one row per seed), then the paired
     difference method − reference over the seeds both have, its mean ± std, how many seeds are higher / lower, and

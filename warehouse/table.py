@@ -37,13 +37,14 @@ def col(name, type_, unit, description, nullable=False) -> Column:
     return Column(name, type_, unit, description, nullable)
 
 
-def comparison_columns(methods: str, references: str, metrics: str, pairs: str) -> tuple[Column, ...]:
-    """The columns of models.stats.paired_comparisons (after the group column): which method against which, per metric."""
+def comparison_columns(methods: str, references: str, metrics: str, seeds_note: str = "") -> tuple[Column, ...]:
+    """The columns of models.stats.paired_comparisons (after the group column): which method against which, per metric;
+    `seeds_note` ends the description of `seeds` (what one seed's value is)."""
     return (
         col("method", pa.string(), "", f"the compared method: {methods}"),
         col("reference", pa.string(), "", f"the method it is compared with: {references}"),
         col("metric", pa.string(), "", metrics),
-        col("seeds", pa.int64(), "", f"training seeds both methods ran (the pairs){pairs}"),
+        col("seeds", pa.int64(), "", f"training seeds both methods ran (the pairs){seeds_note}"),
         col("method_mean", pa.float64(), "metric's", "the method's metric, mean over the seeds"),
         col("reference_mean", pa.float64(), "metric's", "the reference's metric, mean over the seeds"),
         col("mean_diff", pa.float64(), "metric's", "mean over seeds of (method - reference)"),

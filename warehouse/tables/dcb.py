@@ -132,7 +132,7 @@ TABLES: list[Table] = [
         (
             _CASE,
             *comparison_columns("HCMARL", "CMARL or MIRL", "regulated_flights, total_delay_min (min), avg_delay_min (min) or "
-                                "gap_to_optimum (fraction), as in dcb_results", ""),
+                                "gap_to_optimum (fraction), as in dcb_results"),
         ),
     ),
     Table(

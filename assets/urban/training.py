@@ -35,6 +35,10 @@ class TrainingConfig(dg.Config):
         "(no rear-end collisions), junction crossings stay the agents' job, as for the thesis's IDM baseline (docs/urban.md). "
         "False: every SUMO check off. The policies keep it for evaluation.",
     )
+    checkpoint_minutes: float = Field(
+        default=10.0, ge=0, description="save each run's training state this often (and when it ends) under checkpoints/, so that "
+        "materialising again after an interruption resumes each unfinished run where it stopped and skips the finished ones, "
+        "with the numbers of an uninterrupted run; removed once the asset succeeds. 0: no checkpoints")
 
 
 def training_plan(config: TrainingConfig, trained_scenarios: list[str]) -> dict:
@@ -65,7 +69,7 @@ def urban_training(context: dg.AssetExecutionContext, config: TrainingConfig, ur
     train = urban_scenarios.filter(pl.col("role") == "train")
     plan = training_plan(config, train["scenario"].unique(maintain_order=True).to_list())
     episodes, seeds, only_on = plan["episodes"], plan["seeds"], plan["method_scenarios"]
-    frames, timings, learner_cpu = [], {}, {}  # learner CPU: this process (gradient steps), whatever the machine's load
+    frames, timings, learner_cpu, checkpoints = [], {}, {}, []  # learner CPU: this process (gradient steps), whatever the machine's load
     with ProcessPool(config.workers or usable_cores(), col_marl.run_episode) as pool:
         for (scenario,), g in train.group_by("scenario", maintain_order=True):
             copies = [(files_of(r), r["n_vehicles"]) for r in g.iter_rows(named=True)]
@@ -76,8 +80,10 @@ def urban_training(context: dg.AssetExecutionContext, config: TrainingConfig, ur
                 for seed in seeds:
                     t, cpu = time.perf_counter(), time.process_time()
                     log = lambda msg: context.log.info(f"{scenario} seed {seed}: {msg}")  # noqa: E731
+                    checkpoint = artifact_path("checkpoints", f"urban_{scenario}_{method}_seed{seed}.ckpt") if config.checkpoint_minutes else None
                     params, rows = col_marl.train(copies, agents, METHODS_RL[method], episodes, seed, pool, log, config.leader_guard,
-                                                    config.gradient_steps)
+                                                    config.gradient_steps, checkpoint=checkpoint, checkpoint_every_s=60 * config.checkpoint_minutes)
+                    checkpoints += [checkpoint] if checkpoint else []
                     path = write_bytes_atomic(artifact_path("models", f"urban_{scenario}_{method}_seed{seed}.pt"), policy_bytes(
                         params, agents, config.leader_guard, variant=METHODS_RL[method], scenario=scenario, seed=seed,
                         episodes=episodes, gradient_steps=config.gradient_steps))
@@ -88,6 +94,8 @@ def urban_training(context: dg.AssetExecutionContext, config: TrainingConfig, ur
     last = df.filter(pl.col("episode") >= episodes - max(episodes // 10, 1)).group_by("scenario", "method").agg(
         pl.col("return").mean().alias("mean_return_last_10pct"))
     context.log.info(f"trained {len(timings)} policy sets in {sum(timings.values()):.0f} s: {timings}")
+    for path in checkpoints:
+        path.unlink(missing_ok=True)
     return dg.Output(df, metadata={"train_seconds": dg.MetadataValue.json(timings), "learner_cpu_seconds": dg.MetadataValue.json(learner_cpu),
                                    "episodes": episodes, "leader_guard": config.leader_guard,
                                    "final_returns": dg.MetadataValue.json(last.to_dicts()), "workers": config.workers or usable_cores()})

@@ -26,6 +26,7 @@ import torch
 from torch import nn
 
 from models.urban import kernels
+from models.urban.checkpoint import Checkpoint, fingerprint
 from models.urban.env import GOAL_REWARD, STATE_DIM, UrbanParallelEnv, route_agent
 from models.urban.sim import ScenarioFiles
 
@@ -246,6 +247,20 @@ class ReplayBuffers:
         k, j = np.nonzero(valid)
         self.target_q[k, slots[k, j]] = q[k, j]
 
+    def state_dict(self) -> dict:
+        """The filled slots (agents fill theirs from 0 up) and the ring positions, as tensors, for a checkpoint."""
+        filled = int(self.size.max())
+        kept = {k: v[:, :filled] for k, v in vars(self).items() if isinstance(v, np.ndarray) and v.ndim > 1}
+        return {**{k: torch.from_numpy(np.ascontiguousarray(v)) for k, v in kept.items()},
+                "size": torch.from_numpy(self.size.copy()), "head": torch.from_numpy(self.head.copy())}
+
+    def load_state_dict(self, saved: dict) -> None:
+        for k, v in saved.items():
+            if k in ("size", "head"):
+                setattr(self, k, v.numpy().copy())
+            else:
+                getattr(self, k)[:, :v.shape[1]] = v.numpy()
+
     def sample(self, rng: np.random.Generator, batch: int):
         """`batch` transitions of every agent (drawn with replacement); agents with an empty buffer are masked.
         The last item is the next states' allowed actions, None when the buffers are not masked."""
@@ -333,6 +348,8 @@ def train(
     leader_guard: bool = True,
     gradient_steps: int | None = None,
     shield: bool = False,
+    checkpoint: str | None = None,
+    checkpoint_every_s: float = 600.0,
 ) -> tuple[dict, list[dict]]:
     """Train the route agents on the training copies (episode k uses copy k mod len(copies)).
 
@@ -341,8 +358,11 @@ def train(
     threads as there are workers (the workers wait meanwhile); the same seed gives the same weights and log.
     gradient_steps per episode: None = the variant's default. shield: the training episodes run under the env's safety
     layer (the agents act and bootstrap only over allowed actions; off by default: not the thesis, and measured no
-    better, docs/urban.md). Returns (numpy weights, route agents that saw no vehicle sharing their route's trained one's:
-    `share_untrained`; one log row per route agent and logged episode: see LOG_EPISODES)."""
+    better, docs/urban.md). checkpoint: a file where the run's whole state (weights, Adam, replay buffers, random
+    generator, log) is saved every `checkpoint_every_s` and at the end; a call that finds this run's checkpoint there goes
+    on from it, to the same result as an uninterrupted run (models/urban/checkpoint.py). Returns (numpy weights, route
+    agents that saw no vehicle sharing their route's trained one's: `share_untrained`; one log row per route agent and
+    logged episode: see LOG_EPISODES)."""
     torch.manual_seed(seed)
     gen = torch.Generator().manual_seed(seed)
     rng = np.random.default_rng(seed)
@@ -355,6 +375,25 @@ def train(
     rows: list[dict] = []
     workers = getattr(run_parallel, "workers", 1)
     episode = 0
+    if checkpoint:  # the rounds (one episode per worker) and the learner's threads depend on the workers
+        files = [path for files, _ in copies for path in (files.net, files.routes, files.vtypes("idm"), files.vtypes("krauss"))]
+        checkpoint = Checkpoint(checkpoint, fingerprint(
+            files, variant=variant, episodes=episodes, seed=seed, workers=workers, leader_guard=leader_guard, steps=steps,
+            shield=shield, agents=agents, copies=[(f.last_depart_s, f.max_speed_mps, n) for f, n in copies]), checkpoint_every_s)
+        saved = checkpoint.load()
+        if checkpoint.skipped:
+            log(checkpoint.skipped)
+        if saved and saved["done"]:
+            log(f"{variant}: trained already ({checkpoint.path})")
+            return {k: v.numpy() for k, v in saved["params"].items()}, saved["rows"]
+        if saved:
+            episode, rows = saved["episode"], saved["rows"]
+            q.load_state_dict(saved["q"])
+            target.load_state_dict(saved["target"])
+            optimiser.load_state_dict(saved["optimiser"])
+            buffers.load_state_dict(saved["buffers"])
+            rng.bit_generator.state = saved["rng"]
+            log(f"{variant}: resumed at episode {episode}/{episodes} from {checkpoint.path}")
     while episode < episodes:
         n = min(workers, episodes - episode)
         params = numpy_params(q)
@@ -383,4 +422,10 @@ def train(
                     f"teleports={m['teleports']} arrived={m['arrived']}/{job.n_vehicles} travel={m['avg_travel_time_s']:.1f}s "
                     f"loss={np.nanmean(losses):.3f}")
             episode += 1
-    return share_untrained(numpy_params(q), agents, buffers.size > 0), rows
+        if checkpoint and checkpoint.due() and episode < episodes:
+            checkpoint.save({"done": False, "episode": episode, "rows": rows, "q": q.state_dict(), "target": target.state_dict(),
+                             "optimiser": optimiser.state_dict(), "buffers": buffers.state_dict(), "rng": rng.bit_generator.state})
+    params = share_untrained(numpy_params(q), agents, buffers.size > 0)
+    if checkpoint:  # kept until the caller removes it: a re-run after a later crash skips this finished run
+        checkpoint.save({"done": True, "params": {k: torch.from_numpy(v) for k, v in params.items()}, "rows": rows})
+    return params, rows

@@ -4,6 +4,7 @@ import re
 from pathlib import Path
 
 import numpy as np
+import pytest
 import torch
 
 from models.urban import col_marl
@@ -13,9 +14,9 @@ from models.parallel import ProcessPool
 from urban_fixtures import make_copy
 
 
-def _train(files, agents, variant, seed, episodes=3, gradient_steps=None, shield=False):
+def _train(files, agents, variant, seed, episodes=3, gradient_steps=None, shield=False, log=lambda _: None, **checkpoint):
     with ProcessPool(1, run_episode) as pool:
-        return train([(files, 15)], agents, variant, episodes, seed, pool, log=lambda _: None, gradient_steps=gradient_steps, shield=shield)
+        return train([(files, 15)], agents, variant, episodes, seed, pool, log, gradient_steps=gradient_steps, shield=shield, **checkpoint)
 
 
 def _drove(files, agents) -> np.ndarray:
@@ -41,6 +42,41 @@ def test_same_seed_same_policy_and_log(tmp_path, sc1_net, monkeypatch):
     kept = [r for r in ra if r["episode"] in (0, 2)]
     assert [(r["agent"], r["episode"]) for r in rt] == [(r["agent"], r["episode"]) for r in kept]
     np.testing.assert_array_equal([(r["return"], r["loss"]) for r in rt], [(r["return"], r["loss"]) for r in kept])
+
+
+def _assert_same_rows(a: list[dict], b: list[dict]) -> None:
+    assert [(r["agent"], r["episode"], r["epsilon"]) for r in a] == [(r["agent"], r["episode"], r["epsilon"]) for r in b]
+    np.testing.assert_array_equal([(r["return"], r["loss"]) for r in a], [(r["return"], r["loss"]) for r in b])  # NaN == NaN here
+
+
+def test_an_interrupted_run_resumes_from_its_checkpoint_to_the_uninterrupted_result(tmp_path, sc1_net):
+    files, routes = make_copy(tmp_path / "c", sc1_net, 15, 60.0)
+    agents = [f"{r['route_id']}:{c}" for r in routes for c in ("car", "heavy")]
+    straight, straight_rows = _train(files, agents, "col", 0, episodes=4, gradient_steps=5)
+    ckpt = tmp_path / "run.ckpt"
+
+    def crash_in_third_episode(message):  # one worker: a round is one episode; the last checkpoint is after episode 2
+        if "episode 3/4" in message:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        _train(files, agents, "col", 0, episodes=4, gradient_steps=5, log=crash_in_third_episode, checkpoint=ckpt, checkpoint_every_s=0)
+    log = []
+    params, rows = _train(files, agents, "col", 0, episodes=4, gradient_steps=5, log=log.append, checkpoint=ckpt, checkpoint_every_s=0)
+    assert any("resumed at episode 2/4" in m for m in log) and not any("episode 1/4" in m for m in log)
+    assert all(np.array_equal(straight[k], params[k]) for k in straight)
+    _assert_same_rows(rows, straight_rows)
+    # finished: the checkpoint now holds the result, and a re-run returns it without an episode
+    log.clear()
+    again, again_rows = _train(files, agents, "col", 0, episodes=4, gradient_steps=5, log=log.append, checkpoint=ckpt)
+    assert log == [f"col: trained already ({ckpt})"] and all(np.array_equal(params[k], again[k]) for k in params)
+    _assert_same_rows(again_rows, rows)
+    # another configuration (episodes) or an unreadable file: not used, the run starts afresh
+    for damage in (lambda: None, lambda: ckpt.write_bytes(ckpt.read_bytes()[:100])):
+        damage()
+        log.clear()
+        _, other_rows = _train(files, agents, "col", 0, episodes=2, gradient_steps=5, log=log.append, checkpoint=ckpt)
+        assert "starting afresh" in log[0] and {r["episode"] for r in other_rows} == {0, 1}
 
 
 def test_a_route_agent_that_saw_no_vehicle_drives_with_its_routes_trained_agent(tmp_path, sc1_net):

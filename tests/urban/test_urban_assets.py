@@ -6,6 +6,7 @@ import dagster as dg
 import polars as pl
 
 from assets.urban.scenarios import urban_routes, urban_scenarios
+from assets.urban.training import urban_training
 from models.urban.experiments import evaluation_jobs, results_rows, run_job, thesis_markdown, thesis_tables
 from warehouse.io_manager import ParquetIOManager
 from warehouse.storage import read_table
@@ -35,3 +36,30 @@ def test_scenario_assets_and_baselines(isolated_home):
     assert set(tables["thesis_table"]) == {"3.2", "4.3"}
     assert tables.filter(pl.col("thesis_table") == "3.2")["method"].sort().to_list() == ["idm", "krauss"]
     assert "**Table 3.2**" in thesis_markdown(tables)
+
+
+def test_training_asset_skips_runs_finished_before_a_failure_and_removes_its_checkpoints(isolated_home):
+    io = {"io_manager": ParquetIOManager()}
+    assert dg.materialize([urban_routes, urban_scenarios], resources=io).success
+    train = read_table("urban_scenarios").filter(pl.col("role") == "train")
+    first, later = train["scenario"].unique(maintain_order=True).to_list()[:2]
+    routes = Path(train.filter(pl.col("scenario") == later)["routes_path"][0])
+    good = routes.read_bytes()
+    routes.write_text("<routes><vehicle")  # the later scenario's first copy fails once the first scenario is trained
+    config = {"episodes": 2, "seeds": [0], "methods": ["col_marl"], "workers": 1, "gradient_steps": 2}
+    assets = [dg.AssetSpec("urban_routes"), dg.AssetSpec("urban_scenarios"), urban_training]
+    instance = dg.DagsterInstance.ephemeral()
+    failed = dg.materialize(assets, run_config={"ops": {"urban_training": {"config": config}}}, resources=io, instance=instance,
+                            raise_on_error=False)
+    assert not failed.success
+    assert [p.name for p in (isolated_home / "checkpoints").iterdir()] == [f"urban_{first}_col_marl_seed0.ckpt"]
+    routes.write_bytes(good)
+    done = dg.materialize(assets, run_config={"ops": {"urban_training": {"config": config}}}, resources=io, instance=instance)
+    messages = [e.user_message for e in instance.all_logs(done.run_id)]
+    assert any(m.endswith(f"{first} seed 0: col: trained already ({isolated_home / 'checkpoints'}/urban_{first}_col_marl_seed0.ckpt)")
+               for m in messages)
+    assert not any(f"{later} seed 0: col: trained already" in m for m in messages)
+    assert list((isolated_home / "checkpoints").iterdir()) == []
+    log = read_table("urban_training")
+    assert sorted(log["scenario"].unique()) == sorted([first, later]) and set(log["episode"]) == {0, 1}
+    assert all(Path(p).is_file() for p in log["model_path"].unique())

@@ -82,7 +82,7 @@ def urban_training(context: dg.AssetExecutionContext, config: TrainingConfig, ur
                     log = lambda msg: context.log.info(f"{scenario} seed {seed}: {msg}")  # noqa: E731
                     checkpoint = artifact_path("checkpoints", f"urban_{scenario}_{method}_seed{seed}.ckpt") if config.checkpoint_minutes else None
                     params, rows = col_marl.train(copies, agents, METHODS_RL[method], episodes, seed, pool, log, config.leader_guard,
-                                                    config.gradient_steps, checkpoint=checkpoint, checkpoint_every_s=60 * config.checkpoint_minutes)
+                                                    config.gradient_steps, checkpoint_path=checkpoint, checkpoint_every_s=60 * config.checkpoint_minutes)
                     checkpoints += [checkpoint] if checkpoint else []
                     path = write_bytes_atomic(artifact_path("models", f"urban_{scenario}_{method}_seed{seed}.pt"), policy_bytes(
                         params, agents, config.leader_guard, variant=METHODS_RL[method], scenario=scenario, seed=seed,

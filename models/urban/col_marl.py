@@ -337,6 +337,13 @@ def epsilon_at(episode: int, episodes: int) -> float:
     return max(EPSILON_START * (1.0 - episode / explore), 0.0)
 
 
+def _checkpoint(path: str, every_s: float, copies: list[tuple[ScenarioFiles, int]], **arguments) -> Checkpoint:
+    """One run's checkpoint, fingerprinted by the arguments that decide its numbers and its training copies' files (the
+    workers too: a round runs one episode per worker, and the learner as many threads)."""
+    files = [file for f, _ in copies for file in (f.net, f.routes, f.vtypes("idm"), f.vtypes("krauss"))]
+    return Checkpoint(path, fingerprint(files, copies=[(f.last_depart_s, f.max_speed_mps, n) for f, n in copies], **arguments), every_s)
+
+
 def train(
     copies: list[tuple[ScenarioFiles, int]],
     agents: list[str],
@@ -348,7 +355,7 @@ def train(
     leader_guard: bool = True,
     gradient_steps: int | None = None,
     shield: bool = False,
-    checkpoint: str | None = None,
+    checkpoint_path: str | None = None,
     checkpoint_every_s: float = 600.0,
 ) -> tuple[dict, list[dict]]:
     """Train the route agents on the training copies (episode k uses copy k mod len(copies)).
@@ -358,7 +365,7 @@ def train(
     threads as there are workers (the workers wait meanwhile); the same seed gives the same weights and log.
     gradient_steps per episode: None = the variant's default. shield: the training episodes run under the env's safety
     layer (the agents act and bootstrap only over allowed actions; off by default: not the thesis, and measured no
-    better, docs/urban.md). checkpoint: a file where the run's whole state (weights, Adam, replay buffers, random
+    better, docs/urban.md). checkpoint_path: a file where the run's whole state (weights, Adam, replay buffers, random
     generator, log) is saved every `checkpoint_every_s` and at the end; a call that finds this run's checkpoint there goes
     on from it, to the same result as an uninterrupted run (models/urban/checkpoint.py). Returns (numpy weights, route
     agents that saw no vehicle sharing their route's trained one's: `share_untrained`; one log row per route agent and
@@ -375,25 +382,21 @@ def train(
     rows: list[dict] = []
     workers = getattr(run_parallel, "workers", 1)
     episode = 0
-    if checkpoint:  # the rounds (one episode per worker) and the learner's threads depend on the workers
-        files = [path for files, _ in copies for path in (files.net, files.routes, files.vtypes("idm"), files.vtypes("krauss"))]
-        checkpoint = Checkpoint(checkpoint, fingerprint(
-            files, variant=variant, episodes=episodes, seed=seed, workers=workers, leader_guard=leader_guard, steps=steps,
-            shield=shield, agents=agents, copies=[(f.last_depart_s, f.max_speed_mps, n) for f, n in copies]), checkpoint_every_s)
-        saved = checkpoint.load()
-        if checkpoint.skipped:
-            log(checkpoint.skipped)
-        if saved and saved["done"]:
-            log(f"{variant}: trained already ({checkpoint.path})")
-            return {k: v.numpy() for k, v in saved["params"].items()}, saved["rows"]
-        if saved:
-            episode, rows = saved["episode"], saved["rows"]
-            q.load_state_dict(saved["q"])
-            target.load_state_dict(saved["target"])
-            optimiser.load_state_dict(saved["optimiser"])
-            buffers.load_state_dict(saved["buffers"])
-            rng.bit_generator.state = saved["rng"]
-            log(f"{variant}: resumed at episode {episode}/{episodes} from {checkpoint.path}")
+    stateful = {"q": q, "target": target, "optimiser": optimiser, "buffers": buffers}  # a checkpoint's parts, with episode, log, generator
+    checkpoint = checkpoint_path and _checkpoint(
+        checkpoint_path, checkpoint_every_s, copies, variant=variant, episodes=episodes, seed=seed, workers=workers,
+        leader_guard=leader_guard, steps=steps, shield=shield, agents=agents)
+    saved = checkpoint.load() if checkpoint else None
+    if checkpoint and checkpoint.skipped:
+        log(checkpoint.skipped)
+    if saved and saved["done"]:
+        log(f"{variant}: trained already ({checkpoint.path})")
+        return {k: v.numpy() for k, v in saved["params"].items()}, saved["rows"]
+    if saved:
+        episode, rows, rng.bit_generator.state = saved["episode"], saved["rows"], saved["rng"]
+        for key, part in stateful.items():
+            part.load_state_dict(saved[key])
+        log(f"{variant}: resumed at episode {episode}/{episodes} from {checkpoint.path}")
     while episode < episodes:
         n = min(workers, episodes - episode)
         params = numpy_params(q)
@@ -423,8 +426,8 @@ def train(
                     f"loss={np.nanmean(losses):.3f}")
             episode += 1
         if checkpoint and checkpoint.due() and episode < episodes:
-            checkpoint.save({"done": False, "episode": episode, "rows": rows, "q": q.state_dict(), "target": target.state_dict(),
-                             "optimiser": optimiser.state_dict(), "buffers": buffers.state_dict(), "rng": rng.bit_generator.state})
+            checkpoint.save({"done": False, "episode": episode, "rows": rows, "rng": rng.bit_generator.state,
+                             **{key: part.state_dict() for key, part in stateful.items()}})
     params = share_untrained(numpy_params(q), agents, buffers.size > 0)
     if checkpoint:  # kept until the caller removes it: a re-run after a later crash skips this finished run
         checkpoint.save({"done": True, "params": {k: torch.from_numpy(v) for k, v in params.items()}, "rows": rows})

@@ -60,22 +60,22 @@ def test_an_interrupted_run_resumes_from_its_checkpoint_to_the_uninterrupted_res
             raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
-        _train(files, agents, "col", 0, episodes=4, gradient_steps=5, log=crash_in_third_episode, checkpoint=ckpt, checkpoint_every_s=0)
+        _train(files, agents, "col", 0, episodes=4, gradient_steps=5, log=crash_in_third_episode, checkpoint_path=ckpt, checkpoint_every_s=0)
     log = []
-    params, rows = _train(files, agents, "col", 0, episodes=4, gradient_steps=5, log=log.append, checkpoint=ckpt, checkpoint_every_s=0)
+    params, rows = _train(files, agents, "col", 0, episodes=4, gradient_steps=5, log=log.append, checkpoint_path=ckpt, checkpoint_every_s=0)
     assert any("resumed at episode 2/4" in m for m in log) and not any("episode 1/4" in m for m in log)
     assert all(np.array_equal(straight[k], params[k]) for k in straight)
     _assert_same_rows(rows, straight_rows)
     # finished: the checkpoint now holds the result, and a re-run returns it without an episode
     log.clear()
-    again, again_rows = _train(files, agents, "col", 0, episodes=4, gradient_steps=5, log=log.append, checkpoint=ckpt)
+    again, again_rows = _train(files, agents, "col", 0, episodes=4, gradient_steps=5, log=log.append, checkpoint_path=ckpt)
     assert log == [f"col: trained already ({ckpt})"] and all(np.array_equal(params[k], again[k]) for k in params)
     _assert_same_rows(again_rows, rows)
     # another configuration (episodes) or an unreadable file: not used, the run starts afresh
     for damage in (lambda: None, lambda: ckpt.write_bytes(ckpt.read_bytes()[:100])):
         damage()
         log.clear()
-        _, other_rows = _train(files, agents, "col", 0, episodes=2, gradient_steps=5, log=log.append, checkpoint=ckpt)
+        _, other_rows = _train(files, agents, "col", 0, episodes=2, gradient_steps=5, log=log.append, checkpoint_path=ckpt)
         assert "starting afresh" in log[0] and {r["episode"] for r in other_rows} == {0, 1}
 
 

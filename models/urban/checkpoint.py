@@ -57,12 +57,10 @@ class Checkpoint:
     def save(self, state: dict) -> None:
         """Atomically (temp file + rename): a crash while saving leaves the previous checkpoint."""
         self.path.parent.mkdir(parents=True, exist_ok=True)
+
         def write(tmp: str) -> None:
             with open(tmp, "wb") as f:  # a file object: torch's own path writer refuses the temp file's name
                 torch.save({"format": FORMAT, "fingerprint": self.fingerprint, "state": state}, f)
 
         replace_atomically(self.path, write)
         self._last = time.monotonic()
-
-    def remove(self) -> None:
-        self.path.unlink(missing_ok=True)

@@ -10,6 +10,7 @@ differs, or that cannot be read, is not used: the run starts afresh and overwrit
 
 import hashlib
 import json
+import re
 import time
 from pathlib import Path
 
@@ -21,11 +22,17 @@ FORMAT = "trafficlearn.urban_checkpoint.v1"
 CODE = sorted(Path(__file__).parent.glob("*.py"))  # any change to the urban models invalidates a checkpoint
 
 
+XML_COMMENT = re.compile(rb"<!--.*?-->", re.DOTALL)
+
+
 def fingerprint(files: list[str], **arguments) -> str:
-    """sha256 over the arguments (JSON), the files' bytes and the urban models' source."""
+    """sha256 over the arguments (JSON), the files' bytes and the urban models' source. XML comments are left out: SUMO's
+    tools stamp each file they write with its time ("generated on ..."), so a network made again is the same network."""
     h = hashlib.sha256(json.dumps(arguments, sort_keys=True, default=str).encode())
-    for path in [*files, *CODE]:
-        h.update(Path(path).read_bytes())
+    for path in files:
+        h.update(XML_COMMENT.sub(b"", Path(path).read_bytes()))
+    for path in CODE:
+        h.update(path.read_bytes())
     return h.hexdigest()
 
 

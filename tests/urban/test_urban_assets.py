@@ -54,7 +54,9 @@ def test_training_asset_skips_runs_finished_before_a_failure_and_removes_its_che
     assert not failed.success
     assert [p.name for p in (isolated_home / "checkpoints").iterdir()] == [f"urban_{first}_col_marl_seed0.ckpt"]
     routes.write_bytes(good)
-    done = dg.materialize(assets, run_config={"ops": {"urban_training": {"config": config}}}, resources=io, instance=instance)
+    # the same command again, networks and copies made anew (SUMO stamps each file with its time): the checkpoint still holds
+    done = dg.materialize([urban_routes, urban_scenarios, urban_training], run_config={"ops": {"urban_training": {"config": config}}},
+                          resources=io, instance=instance)
     messages = [e.user_message for e in instance.all_logs(done.run_id)]
     assert any(m.endswith(f"{first} seed 0: col: trained already ({isolated_home / 'checkpoints'}/urban_{first}_col_marl_seed0.ckpt)")
                for m in messages)

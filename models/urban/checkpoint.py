@@ -9,6 +9,7 @@ differs, or that cannot be read, is not used: the run starts afresh and overwrit
 """
 
 import hashlib
+import io
 import json
 import re
 import time
@@ -16,7 +17,7 @@ from pathlib import Path
 
 import torch
 
-from warehouse.storage import replace_atomically
+from warehouse.artifacts import write_bytes_atomic
 
 FORMAT = "trafficlearn.urban_checkpoint.v1"
 CODE = sorted(Path(__file__).parent.glob("*.py"))  # any change to the urban models invalidates a checkpoint
@@ -63,11 +64,8 @@ class Checkpoint:
 
     def save(self, state: dict) -> None:
         """Atomically (temp file + rename): a crash while saving leaves the previous checkpoint."""
+        buffer = io.BytesIO()
+        torch.save({"format": FORMAT, "fingerprint": self.fingerprint, "state": state}, buffer)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-
-        def write(tmp: str) -> None:
-            with open(tmp, "wb") as f:  # a file object: torch's own path writer refuses the temp file's name
-                torch.save({"format": FORMAT, "fingerprint": self.fingerprint, "state": state}, f)
-
-        replace_atomically(self.path, write)
+        write_bytes_atomic(self.path, buffer.getvalue())
         self._last = time.monotonic()

@@ -248,18 +248,18 @@ class ReplayBuffers:
         self.target_q[k, slots[k, j]] = q[k, j]
 
     def state_dict(self) -> dict:
-        """The filled slots (agents fill theirs from 0 up) and the ring positions, as tensors, for a checkpoint."""
+        """Every array as a tensor, the per-slot ones up to the fullest buffer (agents fill their slots from 0 up)."""
         filled = int(self.size.max())
-        kept = {k: v[:, :filled] for k, v in vars(self).items() if isinstance(v, np.ndarray) and v.ndim > 1}
-        return {**{k: torch.from_numpy(np.ascontiguousarray(v)) for k, v in kept.items()},
-                "size": torch.from_numpy(self.size.copy()), "head": torch.from_numpy(self.head.copy())}
+        return {k: torch.from_numpy(np.ascontiguousarray(v[:, :filled] if v.ndim > 1 else v))
+                for k, v in vars(self).items() if isinstance(v, np.ndarray)}
 
     def load_state_dict(self, saved: dict) -> None:
         for k, v in saved.items():
-            if k in ("size", "head"):
-                setattr(self, k, v.numpy().copy())
-            else:
-                getattr(self, k)[:, :v.shape[1]] = v.numpy()
+            array = getattr(self, k)
+            if array.ndim > 1:
+                array[:, :v.shape[1]] = v.numpy()
+            else:  # size, head
+                array[:] = v.numpy()
 
     def sample(self, rng: np.random.Generator, batch: int):
         """`batch` transitions of every agent (drawn with replacement); agents with an empty buffer are masked.

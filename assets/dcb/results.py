@@ -23,7 +23,7 @@ def dcb_results(context: dg.AssetExecutionContext, dcb_delays: pl.DataFrame, dcb
                 dcb_sector_entries: pl.DataFrame, dcb_sectors: pl.DataFrame, dcb_flights: pl.DataFrame) -> dg.Output:
     probs = problems(dcb_cases, dcb_sector_entries, dcb_sectors, dcb_flights)
     optimum = dict(dcb_reference.filter(pl.col("method") == "optimum").group_by("case").agg(pl.col("delay_min").sum()).iter_rows())
-    delays = pl.concat([dcb_reference, dcb_delays.drop("episodes")])
+    delays = pl.concat([dcb_reference, dcb_delays.drop("episodes")], how="diagonal")
     df = results(delays, probs, optimum)
     metadata = {"runs": df.height, "runs_with_hotspots_left": int((df["hotspots_left"] > 0).sum())}
     for case, problem in probs.items():

@@ -55,7 +55,7 @@ def dcb_delays(context: dg.AssetExecutionContext, config: TrainingConfig, dcb_ca
     with ProcessPool(config.workers or usable_cores(), train_job) as pool:
         jobs = [(problem, method, seed, episodes, options) for _, problem, method, seed in todo]
         for k, ((case, problem, method, seed), r) in enumerate(zip(todo, pool.iter(jobs)), 1):
-            frames.append(delay_rows(case, method, seed, problem, r.delay_min, r.runtime_s, episodes=r.episodes))
+            frames.append(delay_rows(case, method, seed, problem, r.delay_min, r.runtime_s, policy=r))
             runs.append({"case": case, "method": method, "seed": seed, "runtime_s": round(r.runtime_s, 1), "hotspots_left": r.hotspots_left,
                          "total_delay_min": int(r.delay_min.sum()), "solution": r.source,
                          "greedy_hotspots_left": r.greedy_hotspots, "greedy_total_delay_min": r.greedy_delay_min})

@@ -13,8 +13,10 @@ from models.dcb.demand import DemandError, adsb_demand, so6_demand
 from models.markdown import markdown_table
 from models.stats import paired_comparisons
 from models.dcb.problem import DELAY_COST_EUR_PER_MIN, REGULATED_MIN, DCBProblem, aircraft_class, base_capacities, hotspot_table, scaled_capacities
+from models.dcb.train import TrainResult
 
-METRICS = ("avg_delay_min", "regulated_flights", "total_delay_min", "hotspots_left", "gap_to_optimum", "runtime_s")
+METRICS = ("avg_delay_min", "regulated_flights", "total_delay_min", "hotspots_left", "gap_to_optimum", "runtime_s",
+           "policy_hotspots_left", "policy_total_delay_min")
 # the issue's claims about HCMARL, paired over seeds: (method, reference) and the metrics compared
 COMPARISONS = (("HCMARL", "CMARL"), ("HCMARL", "MIRL"))
 COMPARED_METRICS = ("regulated_flights", "total_delay_min", "avg_delay_min", "gap_to_optimum")
@@ -106,30 +108,43 @@ def hotspots_before(case: str, problem: DCBProblem) -> pl.DataFrame:
     return t.filter("is_hotspot").select(pl.lit(case).alias("case"), "sector", "hour", "demand", "capacity")
 
 
-def delay_rows(case: str, method: str, seed: int, problem: DCBProblem, delay_min: np.ndarray, runtime_s: float, **extra) -> pl.DataFrame:
-    return pl.DataFrame({"flight_id": problem.flight_ids, "delay_min": delay_min.astype(np.int64)}).select(
+def delay_rows(case: str, method: str, seed: int, problem: DCBProblem, delay_min: np.ndarray, runtime_s: float,
+               policy: TrainResult | None = None) -> pl.DataFrame:
+    """One row per flight of a solution; a learner's (`policy`: its TrainResult) also carries which candidate was returned,
+    the raw greedy policy's own delay of the flight and the training episodes (dcb_delays)."""
+    df = pl.DataFrame({"flight_id": problem.flight_ids, "delay_min": delay_min.astype(np.int64)}).select(
         case=pl.lit(case), method=pl.lit(method), seed=pl.lit(seed, pl.Int64), flight_id="flight_id", delay_min="delay_min",
-        runtime_s=pl.lit(float(runtime_s)), **{k: pl.lit(v, pl.Int64) for k, v in extra.items()},
-    )
+        runtime_s=pl.lit(float(runtime_s)))
+    if policy is None:
+        return df
+    return df.with_columns(episodes=pl.lit(policy.episodes, pl.Int64), solution=pl.lit(policy.source),
+                           policy_delay_min=pl.Series(policy.greedy_delay.astype(np.int64)))
 
 
 def results(delays: pl.DataFrame, problems: dict, optimum_total: dict) -> pl.DataFrame:
-    """dcb_delays/dcb_reference rows -> one metrics row per (case, method, seed)."""
+    """dcb_delays and dcb_reference rows (diagonal concat: the references have no solution / policy_delay_min) -> one
+    metrics row per (case, method, seed); a learner's row also has its raw greedy policy's hotspots and total delay, the
+    references' are null."""
     rows = []
     for (case, method, seed), g in delays.group_by("case", "method", "seed", maintain_order=True):
         problem = problems[case]
-        d = g.select("flight_id", "delay_min").join(pl.DataFrame({"flight_id": problem.flight_ids}), on="flight_id", how="right")
+        d = g.join(pl.DataFrame({"flight_id": problem.flight_ids}), on="flight_id", how="right")
         delay = d["delay_min"].fill_null(0).to_numpy()
         reg = delay >= REGULATED_MIN
         opt = optimum_total.get(case)
+        policy = d["policy_delay_min"].fill_null(0).to_numpy() if g["policy_delay_min"].is_not_null().all() else None
         rows.append({
             "case": case, "method": method, "seed": seed,
             "avg_delay_min": float(delay[reg].sum() / problem.n_flights), "regulated_flights": int(reg.sum()),
             "hotspots_left": problem.evaluate(delay, all_entries=True).hotspots, "total_delay_min": int(delay.sum()),
             "max_delay_min": int(delay.max()),
             "gap_to_optimum": (delay.sum() - opt) / opt if opt else None, "runtime_s": float(g["runtime_s"][0]),
+            "solution": g["solution"][0],
+            "policy_hotspots_left": None if policy is None else problem.evaluate(policy, all_entries=True).hotspots,
+            "policy_total_delay_min": None if policy is None else int(policy.sum()),
         })
-    return pl.DataFrame(rows, schema_overrides={"gap_to_optimum": pl.Float64, "seed": pl.Int64})
+    return pl.DataFrame(rows, schema_overrides={"gap_to_optimum": pl.Float64, "seed": pl.Int64, "solution": pl.String,
+                                                "policy_hotspots_left": pl.Int64, "policy_total_delay_min": pl.Int64})
 
 
 def summary(results_df: pl.DataFrame) -> pl.DataFrame:
@@ -146,7 +161,8 @@ def comparisons(results_df: pl.DataFrame) -> pl.DataFrame:
     return paired_comparisons(results_df, "case", COMPARISONS, COMPARED_METRICS)
 
 
-def summary_markdown(summ: pl.DataFrame, metrics=("avg_delay_min", "regulated_flights", "total_delay_min", "hotspots_left", "gap_to_optimum")) -> str:
+def summary_markdown(summ: pl.DataFrame, metrics=("avg_delay_min", "regulated_flights", "total_delay_min", "hotspots_left", "gap_to_optimum",
+                                                 "policy_hotspots_left")) -> str:
     """Tables 5.2/5.3-style markdown: one table per metric, rows case x method."""
     out = []
     for m in metrics:

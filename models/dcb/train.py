@@ -46,8 +46,8 @@ hotspots, then least total delay). readout="repair" (default) passes both throug
 (hotspots left resolved first come first served within MaxDelay, then delay no hotspot needs trimmed);
 readout="best_episode" takes them as they are. The better one (fewest hotspots, then least delay; ties:
 greedy) is returned: an operator keeps the best schedule found. `TrainResult.source` says which one;
-`greedy_hotspots` / `greedy_delay_min` always describe the raw greedy rollout, so the policy itself can
-be judged apart from the read-out.
+`greedy_delay` / `greedy_hotspots` always describe the raw greedy rollout, so the policy itself can
+be judged apart from the read-out (dcb_delays' policy_delay_min, dcb_results' policy_* columns).
 """
 
 import time
@@ -116,8 +116,12 @@ class TrainResult:
     episodes: int  # over all levels
     curve: np.ndarray  # [episode, 3]: episode, hotspots left and total delay [min], every 50th training episode
     source: str  # "greedy" (rollout of the final policy) or "best_episode" (best ground-level training episode), repaired or not
-    greedy_hotspots: int  # hotspots left by the greedy rollout of the final policy (whatever was returned)
-    greedy_delay_min: int  # its total delay
+    greedy_delay: np.ndarray  # [flight] the greedy rollout of the final policy, before any read-out (whatever was returned)
+    greedy_hotspots: int  # hotspots it leaves
+
+    @property
+    def greedy_delay_min(self) -> int:
+        return int(self.greedy_delay.sum())
 
 
 def epsilon(episode: int, start: float, episodes: int) -> float:
@@ -252,7 +256,7 @@ def train(problem: DCBProblem, method: str, seed: int, episodes: int = EPISODES,
                 curve.append((n, hot, int(delay.sum())))
             n += 1
     delay, hot = run_episode(problem, learner, ground, 0.0, rng, learn=False, hold=hold)
-    greedy = (int(hot), int(delay.sum()))
+    greedy = (delay, int(hot))
     candidates = {"greedy": delay} if best[2] is None else {"greedy": delay, "best_episode": best[2]}  # None: no episode trained
     if readout == "repair":
         candidates = {k: polish(problem, d) for k, d in candidates.items()}

@@ -47,8 +47,19 @@ def test_dcb_assets_materialise_on_a_slice(tmp_path):
     # the default read-out repairs what the policies leave: no run with a hotspot; the raw greedy policy is reported beside it
     assert checks["learners_leave_no_hotspot"] and (res["hotspots_left"] == 0).all()
     meta = result.asset_materializations_for_node("dcb_delays")[0].metadata
-    runs = meta["runs"].data
-    assert meta["readout"].value == "repair" and len(runs) == 4 and all({"greedy_hotspots_left", "greedy_total_delay_min"} <= set(r) for r in runs)
+    runs = {(r["method"], r["seed"]): r for r in meta["runs"].data}
+    assert meta["readout"].value == "repair" and len(runs) == 4
+    # the raw greedy policy, apart from the read-out, is in the tables: dcb_results' policy_* from dcb_delays' policy_delay_min
+    # (hotspots counted over every entry) agree with the training run's own count and total
+    learned = res.filter(pl.col("method").is_in(["MIRL", "HCMARL"]))
+    for r in learned.iter_rows(named=True):
+        run = runs[(r["method"], r["seed"])]
+        assert (r["policy_hotspots_left"], r["policy_total_delay_min"], r["solution"]) == (
+            run["greedy_hotspots_left"], run["greedy_total_delay_min"], run["solution"])
+    assert learned["policy_hotspots_left"].sum() > 0  # 5 episodes: the policies leave hotspots, the read-out resolves them
+    assert res.filter(~pl.col("method").is_in(["MIRL", "HCMARL"])).select("solution", "policy_hotspots_left", "policy_total_delay_min").null_count().row(0) == (3, 3, 3)
+    checked = {e.check_name: e.metadata for e in result.get_asset_check_evaluations()}["learners_leave_no_hotspot"]
+    assert checked["runs_whose_policy_leaves_hotspots"].value == (learned["policy_hotspots_left"] > 0).sum()
     md = result.asset_materializations_for_node("dcb_results")[0].metadata
     assert any(k.startswith("dcb_demand_capacity_cap90") for k in md) and "dcb_delay_histogram_cap90" in md
     assert "dcb_box_plots" in result.asset_materializations_for_node("dcb_summary")[0].metadata

@@ -11,6 +11,8 @@ _FLIGHT = col("flight_id", pa.string(), "", "flight key (foundation ingest's cal
 _SECTOR = col("sector", pa.string(), "", "sector name (grid: R<row>C<col>_FL<lower>-<upper>)")
 _DELAY = col("delay_min", pa.int64(), "min", "ground delay given to the flight (whole minutes; shifts its whole schedule)")
 _RUNTIME = col("runtime_s", pa.float64(), "s", "wall time of the run that produced this solution (training or solve)")
+_SOLUTION = col("solution", pa.string(), "", "the candidate delay_min was read out of: greedy (the final policy's rollout) or "
+                "best_episode (the best ground-level training episode), each repaired and trimmed unless readout=best_episode")
 
 TABLES: list[Table] = [
     Table(
@@ -107,7 +109,10 @@ TABLES: list[Table] = [
         "Ground delay of every flight in the solution read out of every learner, case and seed: its greedy rollout or best "
         "training episode, hotspots left repaired FCFS and unneeded delay trimmed unless readout=best_episode (docs/dcb.md).",
         (_CASE, _METHOD, _SEED, _FLIGHT, _DELAY, _RUNTIME,
-         col("episodes", pa.int64(), "", "training episodes over all abstraction levels")),
+         col("episodes", pa.int64(), "", "training episodes over all abstraction levels"),
+         _SOLUTION,
+         col("policy_delay_min", pa.int64(), "min", "the flight's delay in the greedy (ε = 0) rollout of the final policy, before any "
+             "read-out: the learned policy's own schedule, whichever candidate delay_min comes from")),
     ),
     Table(
         "dcb_results",
@@ -123,6 +128,11 @@ TABLES: list[Table] = [
             col("gap_to_optimum", pa.float64(), "fraction",
                 "(total_delay_min - optimum's) / optimum's; null when the optimum is 0 or the case has none", nullable=True),
             _RUNTIME,
+            col("solution", pa.string(), "", "learners: " + _SOLUTION.description + "; null for the references", nullable=True),
+            col("policy_hotspots_left", pa.int64(), "", "overloaded sector-hours the learned policy's own schedule (dcb_delays' "
+                "policy_delay_min) leaves, before the read-out: the issue's zero-hotspot target judged on the policy; null for "
+                "the references", nullable=True),
+            col("policy_total_delay_min", pa.int64(), "min", "sum of policy_delay_min; null for the references", nullable=True),
         ),
     ),
     Table(
@@ -140,7 +150,8 @@ TABLES: list[Table] = [
         "Mean, std, median and IQR over seeds per case, method and metric (as thesis Tables 5.2-5.3).",
         (
             _CASE, _METHOD,
-            col("metric", pa.string(), "", "avg_delay_min, regulated_flights, total_delay_min, hotspots_left, gap_to_optimum or runtime_s"),
+            col("metric", pa.string(), "", "avg_delay_min, regulated_flights, total_delay_min, hotspots_left, gap_to_optimum, runtime_s, "
+                "policy_hotspots_left or policy_total_delay_min (dcb_results)"),
             col("n_seeds", pa.int64(), "", "seeds aggregated"),
             col("mean", pa.float64(), "metric's", "mean over seeds"),
             col("std", pa.float64(), "metric's", "sample standard deviation over seeds (null for one seed)", nullable=True),

@@ -32,6 +32,15 @@ def test_write_enforces_declared_schema():
     assert pl.read_parquet(path).schema["rows"] == pl.Int64
 
 
+def test_reading_a_table_written_before_a_column_was_declared_says_to_materialise_it_again():
+    path = storage.write_table("ingest_summary", _summary())
+    _summary().drop("rows").write_parquet(path)  # as an older version of the code would have written it
+    with pytest.raises(storage.SchemaError, match=r"table 'ingest_summary' in .* declared schema had columns \['rows'\]: materialise 'ingest_summary' again"):
+        storage.read_table("ingest_summary")
+    _summary().with_columns(extra=pl.lit(1)).write_parquet(path)  # a column no longer declared is no obstacle to reading
+    assert storage.read_table("ingest_summary").height == 3
+
+
 def test_atomic_write_leaves_old_file_on_failure(monkeypatch):
     path = storage.write_table("ingest_summary", _summary(3))
 

@@ -94,12 +94,21 @@ def write_table(table: str, df: pl.DataFrame, partition: dict[str, str] | None =
 
 
 def read_table(table: str, partition: dict[str, str] | None = None) -> pl.DataFrame:
-    """Read one table (or one partition of it). Raises FileNotFoundError with the asset to materialise."""
+    """Read one table (or one partition of it). Raises FileNotFoundError with the asset to materialise, and SchemaError
+    when the stored file lacks a declared column (written by an older version: materialise it again)."""
     path = table_path(table, partition)
     if partition is None and not path.exists() and table_dir(table).exists():
         files = sorted(table_dir(table).glob("**/data.parquet"))
         if files:
-            return pl.read_parquet([str(f) for f in files], hive_partitioning=True)
+            return _declared(table, pl.read_parquet([str(f) for f in files], hive_partitioning=True), table_dir(table))
     if not path.exists():
         raise FileNotFoundError(f"table '{table}' has not been materialised yet ({path} is missing)")
-    return pl.read_parquet(path)
+    return _declared(table, pl.read_parquet(path), path)
+
+
+def _declared(table: str, df: pl.DataFrame, where: Path) -> pl.DataFrame:
+    missing = [n for n in TABLES[table].schema.names if n not in df.columns] if table in TABLES else []
+    if missing:
+        raise SchemaError(f"table '{table}' in {where} was written before its declared schema had columns {missing}: "
+                          f"materialise '{table}' again")
+    return df

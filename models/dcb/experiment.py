@@ -19,7 +19,8 @@ METRICS = ("avg_delay_min", "regulated_flights", "total_delay_min", "hotspots_le
            "policy_hotspots_left", "policy_total_delay_min")
 # the issue's claims about HCMARL, paired over seeds: (method, reference) and the metrics compared
 COMPARISONS = (("HCMARL", "CMARL"), ("HCMARL", "MIRL"))
-COMPARED_METRICS = ("regulated_flights", "total_delay_min", "avg_delay_min", "gap_to_optimum")
+# and the same for the raw greedy policies, before the read-out (policy_*): which learner's own schedule is better
+COMPARED_METRICS = ("regulated_flights", "total_delay_min", "avg_delay_min", "gap_to_optimum", "policy_hotspots_left", "policy_total_delay_min")
 
 
 def load_demand(path: str | Path, min_points: int = 6, so6_step_s: float = 30.0):

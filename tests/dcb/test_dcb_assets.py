@@ -42,6 +42,10 @@ def test_dcb_assets_materialise_on_a_slice(tmp_path):
     by_seed = {m: res.filter(pl.col("method") == m).sort("seed")["regulated_flights"].to_numpy() for m in ("HCMARL", "MIRL")}
     assert (comp["reference"], comp["seeds"]) == ("MIRL", 2) and comp["mean_diff"] == (by_seed["HCMARL"] - by_seed["MIRL"]).mean()
     assert comp["p_two_sided"] in (0.5, 1.0)  # 2 seeds allow no smaller p
+    # and the raw greedy policies against each other, before the read-out
+    comp = read_table("dcb_comparisons").filter(pl.col("metric") == "policy_total_delay_min").row(0, named=True)
+    by_seed = {m: res.filter(pl.col("method") == m).sort("seed")["policy_total_delay_min"].to_numpy() for m in ("HCMARL", "MIRL")}
+    assert comp["mean_diff"] == (by_seed["HCMARL"] - by_seed["MIRL"]).mean()
     checks = {e.check_name: e.passed for e in result.get_asset_check_evaluations()}
     assert checks["demand_rows_accounted"] and checks["optimum_is_lower_bound"] and checks["entries_consistent"]
     # the default read-out repairs what the policies leave: no run with a hotspot; the raw greedy policy is reported beside it

@@ -17,6 +17,7 @@ speed actions, DQN + CNN over a collision matrix) plugs its own env and network 
 
 import functools
 import itertools
+import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Callable
@@ -50,6 +51,7 @@ REWARD_SCALE = 1.0 / GOAL_REWARD
 # training log: a row per route agent for every k-th episode and the last, k = max(episodes // LOG_EPISODES, 1); the
 # paper profile's every episode would be ~740 M rows (~90 GB), its logged ones ~10 M (the demo logs every episode)
 LOG_EPISODES = 200
+PROGRESS_EVERY_S = 300.0  # a progress line (episode, rate, time left) at every 10 % of the episodes and at least this often
 CHUNK_ROWS = 20_000  # batch rows (agents x transitions) per forward/backward pass of a gradient step: speed only
 
 
@@ -344,6 +346,20 @@ def _checkpoint(path: str, every_s: float, copies: list[tuple[ScenarioFiles, int
     return Checkpoint(path, fingerprint(files, copies=[(f.last_depart_s, f.max_speed_mps, n) for f, n in copies], **arguments), every_s)
 
 
+def _progress_due(episode: int, episodes: int, since_last_line_s: float) -> bool:
+    """A progress line after the first episode, every 10 % of them, the last, and at least every PROGRESS_EVERY_S."""
+    return episode % max(episodes // 10, 1) == 0 or episode == episodes - 1 or since_last_line_s >= PROGRESS_EVERY_S
+
+
+def _pace(done: int, left: int, seconds: float) -> str:
+    """' (12.3 episodes/min, ~1 h 05 min left)' after `done` episodes in `seconds`; '' before the first minute."""
+    if seconds < 60 or done <= 0:
+        return ""
+    per_min = 60 * done / seconds
+    minutes = round(left / per_min)
+    return f" ({per_min:.1f} episodes/min, ~{minutes // 60} h {minutes % 60:02d} min left)"
+
+
 def train(
     copies: list[tuple[ScenarioFiles, int]],
     agents: list[str],
@@ -397,6 +413,8 @@ def train(
         for key, part in stateful.items():
             part.load_state_dict(saved[key])
         log(f"{variant}: resumed at episode {episode}/{episodes} from {checkpoint.path}")
+    first, started = episode, time.monotonic()  # the pace: this call's episodes over this call's time (also when resumed)
+    last_line = started
     while episode < episodes:
         n = min(workers, episodes - episode)
         params = numpy_params(q)
@@ -420,10 +438,11 @@ def train(
                     for k, a in enumerate(agents)
                 ]
             m = result.metrics
-            if episode % max(episodes // 10, 1) == 0 or episode == episodes - 1:
+            if _progress_due(episode, episodes, time.monotonic() - last_line):
                 log(f"{variant} episode {episode + 1}/{episodes}: ε={job.epsilon:.2f} collisions={m['collisions']} "
                     f"teleports={m['teleports']} arrived={m['arrived']}/{job.n_vehicles} travel={m['avg_travel_time_s']:.1f}s "
-                    f"loss={np.nanmean(losses):.3f}")
+                    f"loss={np.nanmean(losses):.3f}{_pace(episode + 1 - first, episodes - episode - 1, time.monotonic() - started)}")
+                last_line = time.monotonic()
             episode += 1
         if checkpoint and checkpoint.due() and episode < episodes:
             checkpoint.save({"done": False, "episode": episode, "rows": rows, "rng": rng.bit_generator.state,

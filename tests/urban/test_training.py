@@ -259,3 +259,12 @@ def test_replay_buffers_keep_the_target_networks_q_of_every_next_state():
         target.w1.add_(1.0)  # a target-network update
     buffers.refresh(target, chunk=3)
     check()
+
+
+def test_long_runs_show_their_progress_at_least_every_few_minutes():
+    due = [e for e in range(15_000) if col_marl._progress_due(e, 15_000, since_last_line_s=0.0)]
+    assert due == [*range(0, 15_000, 1_500), 14_999]  # every 10 % and the last
+    assert col_marl._progress_due(7, 15_000, since_last_line_s=col_marl.PROGRESS_EVERY_S)  # and at least this often
+    assert not col_marl._progress_due(7, 15_000, since_last_line_s=col_marl.PROGRESS_EVERY_S - 1)
+    assert col_marl._pace(100, 11_720, seconds=160.0) == " (37.5 episodes/min, ~5 h 13 min left)"
+    assert col_marl._pace(1, 10, seconds=59.0) == ""  # no rate from under a minute

@@ -6,16 +6,10 @@ import polars as pl
 
 from assets.comparisons import comparisons_output
 from assets.dcb.cases import problems
+from assets.figures import add_plot
 from models.dcb.experiment import comparisons, results, summary, summary_markdown
 from models.dcb.plots import box_plots, delay_histogram, demand_vs_capacity
 from models.dcb.train import METHODS
-from warehouse.artifacts import save_plot
-
-
-def _plot(metadata: dict, name: str, png: bytes) -> None:
-    path, md = save_plot(name, png)
-    metadata[name] = dg.MetadataValue.md(md)
-    metadata[f"{name}_png"] = dg.MetadataValue.path(str(path))
 
 
 @dg.asset(group_name="dcb", description="Average delay (>= 4 min), regulated flights, hotspots left, total delay and gap to the optimum per run.")
@@ -34,9 +28,9 @@ def dcb_results(context: dg.AssetExecutionContext, dcb_delays: pl.DataFrame, dcb
                 continue
             seed = one["seed"].min()
             d = pl.DataFrame({"flight_id": problem.flight_ids}).join(one.filter(pl.col("seed") == seed), on="flight_id", how="left")
-            _plot(metadata, f"dcb_demand_capacity_{case}_{method}",
+            add_plot(metadata, f"dcb_demand_capacity_{case}_{method}",
                   demand_vs_capacity(problem, zero, d["delay_min"].fill_null(0).to_numpy(), f"{case}: {method} (seed {seed})"))
-        _plot(metadata, f"dcb_delay_histogram_{case}", delay_histogram(delays.filter(pl.col("case") == case), f"{case}: delays per method"))
+        add_plot(metadata, f"dcb_delay_histogram_{case}", delay_histogram(delays.filter(pl.col("case") == case), f"{case}: delays per method"))
     context.log.info(f"{df.height} runs, {metadata['runs_with_hotspots_left']} leave hotspots")
     return dg.Output(df, metadata=metadata)
 
@@ -47,7 +41,7 @@ def dcb_summary(dcb_results: pl.DataFrame) -> dg.Output:
     metadata = {"tables": dg.MetadataValue.md(summary_markdown(summ))}
     learners = [m for m in METHODS if m in set(dcb_results["method"])]
     if learners:
-        _plot(metadata, "dcb_box_plots", box_plots(dcb_results, learners))
+        add_plot(metadata, "dcb_box_plots", box_plots(dcb_results, learners))
     return dg.Output(summ, metadata=metadata)
 
 

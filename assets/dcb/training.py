@@ -5,9 +5,11 @@ import polars as pl
 from pydantic import Field
 
 from assets.dcb.cases import problems
+from assets.figures import add_plot
 from assets.profiles import check_names, default_profile, resolve
 from models.dcb.experiment import delay_rows
 from models.dcb.mirl import LEARNING_RATE
+from models.dcb.plots import learning_curves
 from models.dcb.problem import C_PLUS
 from models.dcb.train import METHODS, check_options, train_job
 from models.parallel import ProcessPool, usable_cores
@@ -51,7 +53,7 @@ def dcb_delays(context: dg.AssetExecutionContext, config: TrainingConfig, dcb_ca
                "hold": config.hold, "c_plus": config.c_plus}
     todo = [(case, problem, method, seed) for case, problem in problems(dcb_cases, dcb_sector_entries, dcb_sectors, dcb_flights).items()
             for method in config.methods for seed in seeds]
-    frames, runs = [], []
+    frames, runs, curves = [], [], []
     with ProcessPool(config.workers or usable_cores(), train_job) as pool:
         jobs = [(problem, method, seed, episodes, options) for _, problem, method, seed in todo]
         for k, ((case, problem, method, seed), r) in enumerate(zip(todo, pool.iter(jobs)), 1):
@@ -59,8 +61,11 @@ def dcb_delays(context: dg.AssetExecutionContext, config: TrainingConfig, dcb_ca
             runs.append({"case": case, "method": method, "seed": seed, "runtime_s": round(r.runtime_s, 1), "hotspots_left": r.hotspots_left,
                          "total_delay_min": int(r.delay_min.sum()), "solution": r.source,
                          "greedy_hotspots_left": r.greedy_hotspots, "greedy_total_delay_min": r.greedy_delay_min})
+            curves.append(pl.DataFrame(r.curve, schema=["episode", "hotspots_left", "total_delay_min"], orient="row").with_columns(
+                case=pl.lit(case), method=pl.lit(method), seed=pl.lit(seed)))
             context.log.info(f"[{k}/{len(todo)}] {runs[-1]}")
-    return dg.Output(pl.concat(frames), metadata={"episodes_per_level": episodes, "seeds": dg.MetadataValue.json(seeds),
-                                                  "state": config.state, "reward": config.reward, "learning_rate": config.learning_rate,
-                                                  "readout": config.readout, "hold": config.hold, "c_plus": config.c_plus,
-                                                  "runs": dg.MetadataValue.json(runs)})
+    metadata = {"episodes_per_level": episodes, "seeds": dg.MetadataValue.json(seeds), "state": config.state, "reward": config.reward,
+                "learning_rate": config.learning_rate, "readout": config.readout, "hold": config.hold, "c_plus": config.c_plus,
+                "runs": dg.MetadataValue.json(runs)}
+    add_plot(metadata, "dcb_learning_curves", learning_curves(pl.concat(curves), episodes))
+    return dg.Output(pl.concat(frames), metadata=metadata)

@@ -6,6 +6,7 @@ import dagster as dg
 import polars as pl
 from pydantic import Field
 
+from assets.figures import add_plot
 from assets.profiles import check_names, default_profile, resolve
 from warehouse.artifacts import artifact_path, write_bytes_atomic
 
@@ -62,6 +63,7 @@ def urban_training(context: dg.AssetExecutionContext, config: TrainingConfig, ur
 
     from models.urban import col_marl
     from models.urban.experiments import METHODS_RL, files_of, route_agents, training_frame
+    from models.urban.plots import training_curves_png
     from models.urban.policy_file import policy_bytes
     from models.parallel import ProcessPool, usable_cores
 
@@ -96,6 +98,7 @@ def urban_training(context: dg.AssetExecutionContext, config: TrainingConfig, ur
     context.log.info(f"trained {len(timings)} policy sets in {sum(timings.values()):.0f} s: {timings}")
     for path in checkpoints:
         path.unlink(missing_ok=True)
-    return dg.Output(df, metadata={"train_seconds": dg.MetadataValue.json(timings), "learner_cpu_seconds": dg.MetadataValue.json(learner_cpu),
-                                   "episodes": episodes, "leader_guard": config.leader_guard,
-                                   "final_returns": dg.MetadataValue.json(last.to_dicts()), "workers": config.workers or usable_cores()})
+    metadata = {"train_seconds": dg.MetadataValue.json(timings), "learner_cpu_seconds": dg.MetadataValue.json(learner_cpu), "episodes": episodes,
+                "leader_guard": config.leader_guard, "final_returns": dg.MetadataValue.json(last.to_dicts()), "workers": config.workers or usable_cores()}
+    add_plot(metadata, "urban_training_curves", training_curves_png(df))
+    return dg.Output(df, metadata=metadata)

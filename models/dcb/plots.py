@@ -1,24 +1,15 @@
 """Figures of the DCB system as PNG bytes (matplotlib object API, no pyplot state)."""
 
-import io
-
 import numpy as np
 import polars as pl
-from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from models.dcb.problem import REGULATED_MIN, DCBProblem
+from models.figures import png_bytes
 
 # Fig 5.7's colours (HCMARL blue, stHMIRL red, sHMIRL green, tHMIRL black) plus the two flat learners
 COLORS = {"HCMARL": "#1f77b4", "stHMIRL": "#d62728", "sHMIRL": "#2ca02c", "tHMIRL": "#000000", "MIRL": "#9467bd", "CMARL": "#ff7f0e",
           "optimum": "#17becf", "FCFS": "#bcbd22", "readout_only": "#8c564b"}
-
-
-def _png(fig: Figure) -> bytes:
-    fig.tight_layout()
-    buf = io.BytesIO()
-    FigureCanvasAgg(fig).print_png(buf)
-    return buf.getvalue()
 
 
 def demand_vs_capacity(problem: DCBProblem, before: np.ndarray, after: np.ndarray, title: str) -> bytes:
@@ -37,7 +28,7 @@ def demand_vs_capacity(problem: DCBProblem, before: np.ndarray, after: np.ndarra
         ax.grid(alpha=0.3)
     axes[0].set_ylabel("entries / capacity per sector-hour")
     fig.suptitle(title)
-    return _png(fig)
+    return png_bytes(fig)
 
 
 def delay_histogram(delays: pl.DataFrame, title: str) -> bytes:
@@ -54,7 +45,7 @@ def delay_histogram(delays: pl.DataFrame, title: str) -> bytes:
     ax.set_ylabel("flights per run")
     ax.legend()
     ax.set_title(title)
-    return _png(fig)
+    return png_bytes(fig)
 
 
 def box_plots(results: pl.DataFrame, methods: list[str]) -> bytes:
@@ -76,4 +67,30 @@ def box_plots(results: pl.DataFrame, methods: list[str]) -> bytes:
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
     axes[0].legend(ncol=len(methods), fontsize=8, loc="lower center", bbox_to_anchor=(0.5, 1.0))
-    return _png(fig)
+    return png_bytes(fig)
+
+
+def learning_curves(curves: pl.DataFrame, episodes_per_level: int) -> bytes:
+    """Per case, hotspots left and total delay of the training episodes (ε-greedy, every 50th) per learner, mean over
+    seeds with the seeds' range; `curves` has case, method, seed, episode, hotspots_left, total_delay_min. Hierarchical
+    learners train their abstract level first: its episodes are left of the dotted line."""
+    cases = curves["case"].unique(maintain_order=True).to_list()
+    fig = Figure(figsize=(11, 3.2 * len(cases)))
+    axes = fig.subplots(len(cases), 2, squeeze=False)
+    mean = curves.group_by("case", "method", "episode", maintain_order=True).agg(
+        *(f(c).alias(f"{c}_{f.__name__}") for c in ("hotspots_left", "total_delay_min") for f in (pl.mean, pl.min, pl.max)))
+    for row, case in zip(axes, cases):
+        for (method,), g in mean.filter(pl.col("case") == case).group_by("method", maintain_order=True):
+            g = g.sort("episode")
+            for ax, col in zip(row, ("hotspots_left", "total_delay_min")):
+                color = COLORS.get(method, "#7f7f7f")
+                ax.plot(g["episode"], g[f"{col}_mean"], color=color, lw=1.2, label=method)
+                ax.fill_between(g["episode"], g[f"{col}_min"], g[f"{col}_max"], color=color, alpha=0.15, lw=0)
+        for ax, label in zip(row, ("hotspots left", "total delay [min]")):
+            if curves["episode"].max() >= episodes_per_level:
+                ax.axvline(episodes_per_level, color="k", lw=0.8, ls=":")
+            ax.set_title(f"{case}: {label} in training episodes")
+            ax.set_xlabel("training episode (hierarchical learners: abstract level, then ground level after the dotted line)", fontsize=7)
+            ax.grid(alpha=0.3)
+    axes[0, 0].legend(fontsize=8, ncol=2)
+    return png_bytes(fig)

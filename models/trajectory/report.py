@@ -1,7 +1,5 @@
 """The thesis's result tables (7.2-7.9) and error-growth figures (7.11-7.13) for our data, as markdown and PNG."""
 
-import io
-
 import numpy as np
 import polars as pl
 
@@ -63,12 +61,11 @@ def growth_rates(growth: pl.DataFrame) -> pl.DataFrame:
 
 def growth_figure(growth: pl.DataFrame, phase: str) -> bytes:
     """Figs 7.11-7.13: RMSE 3D, ATE and CTE (nm) per minute of look-ahead for every method, with the requirement line."""
-    import matplotlib
-
-    matplotlib.use("Agg")
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(13, 3.8))
+    from models.figures import png_bytes
+
+    fig = Figure(figsize=(13, 3.8), dpi=90)
     axes = fig.subplots(1, 3)
     df = growth.filter(pl.col("phase") == phase)
     for (method, scheme), g in df.group_by("method", "scheme", maintain_order=True):
@@ -85,10 +82,7 @@ def growth_figure(growth: pl.DataFrame, phase: str) -> bytes:
         ax.set_ylabel("error (nm)")
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=7)
-    fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90)
-    return buf.getvalue()
+    return png_bytes(fig)
 
 
 def thesis_tables(metrics: pl.DataFrame, posteriors: pl.DataFrame) -> dict[str, str]:

@@ -1,11 +1,10 @@
 """Figures of the urban system as PNG bytes (matplotlib object API, no pyplot state)."""
 
-import io
-
 import numpy as np
 import polars as pl
-from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+
+from models.figures import png_bytes
 
 METHOD_COLORS = {"col_marl": "#1f77b4", "i_marl": "#ff7f0e", "idm": "#2ca02c", "krauss": "#d62728", "ch3_dqn_cnn": "#9467bd"}
 BIN_M = 10.0
@@ -45,10 +44,7 @@ def route_profile_png(traj: pl.DataFrame, route: str, junctions_m: list[float], 
         ax.grid(alpha=0.3)
     axes[0].legend()
     fig.suptitle(title)
-    fig.tight_layout()
-    buf = io.BytesIO()
-    FigureCanvasAgg(fig).print_png(buf)
-    return buf.getvalue()
+    return png_bytes(fig)
 
 
 def busiest_route(traj: pl.DataFrame, method: str = "col_marl") -> str:
@@ -63,3 +59,36 @@ def junction_offsets_m(edges: str, net_path: str) -> list[float]:
     net = read_net(net_path)
     lengths = np.array([net.getEdge(e).getLength() for e in edges.split()])
     return list(np.cumsum(lengths)[:-1])
+
+
+def training_curves_png(training: pl.DataFrame) -> bytes:
+    """Learning curves of `urban_training`, a row per scenario: the mean return of the route agents that drove in the
+    episode and their mean loss, per method, mean over seeds with the seeds' range, and ε (dotted, right axis)."""
+    per_seed = training.group_by("scenario", "method", "seed", "episode").agg(
+        pl.col("return").mean(), pl.col("loss").mean(), pl.col("epsilon").first())
+    curves = per_seed.group_by("scenario", "method", "episode").agg(
+        *(f(c).alias(f"{c}_{f.__name__}") for c in ("return", "loss") for f in (pl.mean, pl.min, pl.max)), pl.col("epsilon").first()
+    ).sort("scenario", "method", "episode")
+    scenarios = training["scenario"].unique(maintain_order=True).to_list()
+    fig = Figure(figsize=(11, 3.4 * len(scenarios)), dpi=100)
+    axes = fig.subplots(len(scenarios), 2, squeeze=False)
+    for row, scenario in zip(axes, scenarios):
+        one = curves.filter(pl.col("scenario") == scenario)
+        for (method,), g in one.group_by("method", maintain_order=True):
+            for ax, col in zip(row, ("return", "loss")):
+                color = METHOD_COLORS.get(method, "k")
+                ax.plot(g["episode"], g[f"{col}_mean"], color=color, lw=1.2, label=method)
+                ax.fill_between(g["episode"], g[f"{col}_min"], g[f"{col}_max"], color=color, alpha=0.15, lw=0)
+        eps = row[0].twinx()  # every method of a run shares the schedule: the first one's
+        first = one.filter(pl.col("method") == one["method"][0])
+        eps.plot(first["episode"], first["epsilon"], color="0.4", ls=":", lw=1)
+        eps.set_ylabel("ε (dotted)")
+        eps.set_ylim(0, 1)
+        row[0].set_title(f"{scenario}: mean return of the route agents")
+        row[1].set_title(f"{scenario}: DDQN loss")
+        row[1].set_yscale("log")
+        for ax in row:
+            ax.set_xlabel("training episode")
+            ax.grid(alpha=0.3)
+    axes[0, 0].legend(fontsize=8)
+    return png_bytes(fig)

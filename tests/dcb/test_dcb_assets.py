@@ -1,5 +1,7 @@
 """The DCB Dagster assets materialise on a small slice of the Swiss day (real data, few episodes)."""
 
+from pathlib import Path
+
 import dagster as dg
 import polars as pl
 
@@ -53,6 +55,7 @@ def test_dcb_assets_materialise_on_a_slice(tmp_path):
     meta = result.asset_materializations_for_node("dcb_delays")[0].metadata
     runs = {(r["method"], r["seed"]): r for r in meta["runs"].data}
     assert meta["readout"].value == "repair" and len(runs) == 4
+    assert Path(meta["dcb_learning_curves_png"].value).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"  # the training curves, as a figure
     # the raw greedy policy, apart from the read-out, is in the tables: dcb_results' policy_* from dcb_delays' policy_delay_min
     # (hotspots counted over every entry) agree with the training run's own count and total
     learned = res.filter(pl.col("method").is_in(["MIRL", "HCMARL"]))

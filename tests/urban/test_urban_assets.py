@@ -65,3 +65,5 @@ def test_training_asset_skips_runs_finished_before_a_failure_and_removes_its_che
     log = read_table("urban_training")
     assert sorted(log["scenario"].unique()) == sorted([first, later]) and set(log["episode"]) == {0, 1}
     assert all(Path(p).is_file() for p in log["model_path"].unique())
+    curves = done.asset_materializations_for_node("urban_training")[0].metadata["urban_training_curves_png"].value
+    assert Path(curves).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"  # the learning curves of both scenarios, as a figure

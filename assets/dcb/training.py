@@ -7,7 +7,7 @@ from pydantic import Field
 from assets.dcb.cases import problems
 from assets.figures import add_plot
 from assets.profiles import check_names, default_profile, resolve
-from models.dcb.experiment import delay_rows
+from models.dcb.experiment import curve_rows, delay_rows
 from models.dcb.mirl import LEARNING_RATE
 from models.dcb.plots import learning_curves
 from models.dcb.problem import C_PLUS
@@ -61,8 +61,7 @@ def dcb_delays(context: dg.AssetExecutionContext, config: TrainingConfig, dcb_ca
             runs.append({"case": case, "method": method, "seed": seed, "runtime_s": round(r.runtime_s, 1), "hotspots_left": r.hotspots_left,
                          "total_delay_min": int(r.delay_min.sum()), "solution": r.source,
                          "greedy_hotspots_left": r.greedy_hotspots, "greedy_total_delay_min": r.greedy_delay_min})
-            curves.append(pl.DataFrame(r.curve, schema=["episode", "hotspots_left", "total_delay_min"], orient="row").with_columns(
-                case=pl.lit(case), method=pl.lit(method), seed=pl.lit(seed)))
+            curves.append(curve_rows(case, method, seed, r))
             context.log.info(f"[{k}/{len(todo)}] {runs[-1]}")
     metadata = {"episodes_per_level": episodes, "seeds": dg.MetadataValue.json(seeds), "state": config.state, "reward": config.reward,
                 "learning_rate": config.learning_rate, "readout": config.readout, "hold": config.hold, "c_plus": config.c_plus,

@@ -122,6 +122,12 @@ def delay_rows(case: str, method: str, seed: int, problem: DCBProblem, delay_min
                            policy_delay_min=pl.Series(policy.greedy_delay.astype(np.int64)))
 
 
+def curve_rows(case: str, method: str, seed: int, run: TrainResult) -> pl.DataFrame:
+    """The run's training curve (every 50th episode: hotspots left, total delay) as rows, for the learning-curve figure."""
+    return pl.DataFrame(run.curve, schema=["episode", "hotspots_left", "total_delay_min"], orient="row").with_columns(
+        case=pl.lit(case), method=pl.lit(method), seed=pl.lit(seed))
+
+
 def results(delays: pl.DataFrame, problems: dict, optimum_total: dict) -> pl.DataFrame:
     """dcb_delays and dcb_reference rows (diagonal concat: the references have no solution / policy_delay_min) -> one
     metrics row per (case, method, seed); a learner's row also has its raw greedy policy's hotspots and total delay, the

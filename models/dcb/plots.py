@@ -5,7 +5,7 @@ import polars as pl
 from matplotlib.figure import Figure
 
 from models.dcb.problem import REGULATED_MIN, DCBProblem
-from models.figures import png_bytes
+from models.figures import band, over_seeds, png_bytes
 
 # Fig 5.7's colours (HCMARL blue, stHMIRL red, sHMIRL green, tHMIRL black) plus the two flat learners
 COLORS = {"HCMARL": "#1f77b4", "stHMIRL": "#d62728", "sHMIRL": "#2ca02c", "tHMIRL": "#000000", "MIRL": "#9467bd", "CMARL": "#ff7f0e",
@@ -77,17 +77,15 @@ def learning_curves(curves: pl.DataFrame, episodes_per_level: int) -> bytes:
     cases = curves["case"].unique(maintain_order=True).to_list()
     fig = Figure(figsize=(11, 3.2 * len(cases)))
     axes = fig.subplots(len(cases), 2, squeeze=False)
-    mean = curves.group_by("case", "method", "episode", maintain_order=True).agg(
-        *(f(c).alias(f"{c}_{f.__name__}") for c in ("hotspots_left", "total_delay_min") for f in (pl.mean, pl.min, pl.max)))
+    mean = over_seeds(curves, ["case", "method", "episode"], ("hotspots_left", "total_delay_min"))
+    hierarchical = curves["episode"].max() >= episodes_per_level
     for row, case in zip(axes, cases):
         for (method,), g in mean.filter(pl.col("case") == case).group_by("method", maintain_order=True):
             g = g.sort("episode")
             for ax, col in zip(row, ("hotspots_left", "total_delay_min")):
-                color = COLORS.get(method, "#7f7f7f")
-                ax.plot(g["episode"], g[f"{col}_mean"], color=color, lw=1.2, label=method)
-                ax.fill_between(g["episode"], g[f"{col}_min"], g[f"{col}_max"], color=color, alpha=0.15, lw=0)
+                band(ax, g["episode"], g, col, COLORS.get(method, "#7f7f7f"), method)
         for ax, label in zip(row, ("hotspots left", "total delay [min]")):
-            if curves["episode"].max() >= episodes_per_level:
+            if hierarchical:
                 ax.axvline(episodes_per_level, color="k", lw=0.8, ls=":")
             ax.set_title(f"{case}: {label} in training episodes")
             ax.set_xlabel("training episode (hierarchical learners: abstract level, then ground level after the dotted line)", fontsize=7)

@@ -4,7 +4,7 @@ import numpy as np
 import polars as pl
 from matplotlib.figure import Figure
 
-from models.figures import png_bytes
+from models.figures import band, over_seeds, png_bytes
 
 METHOD_COLORS = {"col_marl": "#1f77b4", "i_marl": "#ff7f0e", "idm": "#2ca02c", "krauss": "#d62728", "ch3_dqn_cnn": "#9467bd"}
 BIN_M = 10.0
@@ -66,9 +66,7 @@ def training_curves_png(training: pl.DataFrame) -> bytes:
     episode and their mean loss, per method, mean over seeds with the seeds' range, and ε (dotted, right axis)."""
     per_seed = training.group_by("scenario", "method", "seed", "episode").agg(
         pl.col("return").mean(), pl.col("loss").mean(), pl.col("epsilon").first())
-    curves = per_seed.group_by("scenario", "method", "episode").agg(
-        *(f(c).alias(f"{c}_{f.__name__}") for c in ("return", "loss") for f in (pl.mean, pl.min, pl.max)), pl.col("epsilon").first()
-    ).sort("scenario", "method", "episode")
+    curves = over_seeds(per_seed, ["scenario", "method", "episode", "epsilon"], ("return", "loss")).sort("scenario", "method", "episode")
     scenarios = training["scenario"].unique(maintain_order=True).to_list()
     fig = Figure(figsize=(11, 3.4 * len(scenarios)), dpi=100)
     axes = fig.subplots(len(scenarios), 2, squeeze=False)
@@ -76,9 +74,7 @@ def training_curves_png(training: pl.DataFrame) -> bytes:
         one = curves.filter(pl.col("scenario") == scenario)
         for (method,), g in one.group_by("method", maintain_order=True):
             for ax, col in zip(row, ("return", "loss")):
-                color = METHOD_COLORS.get(method, "k")
-                ax.plot(g["episode"], g[f"{col}_mean"], color=color, lw=1.2, label=method)
-                ax.fill_between(g["episode"], g[f"{col}_min"], g[f"{col}_max"], color=color, alpha=0.15, lw=0)
+                band(ax, g["episode"], g, col, METHOD_COLORS.get(method, "k"), method)
         eps = row[0].twinx()  # every method of a run shares the schedule: the first one's
         first = one.filter(pl.col("method") == one["method"][0])
         eps.plot(first["episode"], first["epsilon"], color="0.4", ls=":", lw=1)
